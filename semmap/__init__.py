@@ -1,0 +1,57 @@
+"""semmap: semantic, cleaned 2D occupancy maps from recorded robot tours.
+
+The public API::
+
+    import semmap
+    result = semmap.simulate("demo", "tours/demo", fmt="mcap", seed=0)
+    info = semmap.bag_info(result.bag)
+
+Heavy modules load on first use, so ``import semmap`` stays fast.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+__version__ = "0.1.0"
+
+_LAZY = {
+    "simulate": "semmap.sim.tour",
+    "SimulationResult": "semmap.sim.tour",
+    "bag_info": "semmap.io.bag",
+    "BagInfo": "semmap.io.bag",
+    "load_world": "semmap.sim.world",
+    "World": "semmap.sim.world",
+    "SCENARIOS": "semmap.sim.scenarios",
+    "SimConfig": "semmap.config",
+    "read_calibration": "semmap.io.calibration",
+    "write_calibration": "semmap.io.calibration",
+    "read_map": "semmap.io.mapserver",
+    "Mobility": "semmap.records",
+    "Calibration": "semmap.records",
+    "CameraIntrinsics": "semmap.records",
+    "SemmapError": "semmap.errors",
+}
+
+__all__ = ["__version__", *_LAZY]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .config import SimConfig
+    from .errors import SemmapError
+    from .io.bag import BagInfo, bag_info
+    from .io.calibration import read_calibration, write_calibration
+    from .io.mapserver import read_map
+    from .records import Calibration, CameraIntrinsics, Mobility
+    from .sim.scenarios import SCENARIOS
+    from .sim.tour import SimulationResult, simulate
+    from .sim.world import World, load_world
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'semmap' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value

@@ -1,0 +1,3 @@
+from semmap.cli.main import main
+
+raise SystemExit(main())

@@ -1,0 +1,106 @@
+"""Class lists and the class → mobility table, read from ``config/classes.yaml``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import yaml
+
+from .errors import ConfigError
+from .records import Mobility
+
+__all__ = ["ClassTable", "config_dir", "load_class_table"]
+
+
+def config_dir() -> Path:
+    """The directory holding semmap's shipped configuration (``classes.yaml``...).
+
+    In a wheel it is packaged as ``semmap/_config``; in a source checkout it is
+    the repository's ``config/``.
+    """
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "_config", here.parent / "config"):
+        if (candidate / "classes.yaml").is_file():
+            return candidate
+    raise ConfigError(f"semmap's configuration folder is missing (looked in {here / '_config'})")
+
+
+@dataclass(frozen=True)
+class ClassTable:
+    """Named class lists and the mobility of every known class name."""
+
+    class_lists: Mapping[str, tuple[str, ...]]
+    mobility: Mapping[str, Mobility]
+    source: str = "<memory>"
+
+    def names(self, list_name: str) -> tuple[str, ...]:
+        try:
+            return self.class_lists[list_name]
+        except KeyError:
+            known = ", ".join(sorted(self.class_lists))
+            raise ConfigError(
+                f"{self.source}: unknown class list {list_name!r} (known: {known})"
+            ) from None
+
+    def mobility_of(self, name: str) -> Mobility:
+        try:
+            return self.mobility[name]
+        except KeyError:
+            raise ConfigError(
+                f"{self.source}: class {name!r} has no mobility; add it under 'mobility:'"
+            ) from None
+
+    def mobility_lut(self, names: Sequence[str]) -> list[Mobility]:
+        """Mobility per label value: index 0 is 'no object' (static), k is names[k-1]."""
+        return [Mobility.STATIC] + [self.mobility_of(n) for n in names]
+
+
+def _parse(data: object, source: str) -> ClassTable:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping with 'class_lists' and 'mobility'")
+    unknown = set(data) - {"class_lists", "mobility"}
+    if unknown:
+        raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}")
+    lists_raw = data.get("class_lists") or {}
+    mob_raw = data.get("mobility") or {}
+    if not isinstance(lists_raw, dict) or not isinstance(mob_raw, dict):
+        raise ConfigError(f"{source}: 'class_lists' and 'mobility' must be mappings")
+    mobility: dict[str, Mobility] = {}
+    for name, value in mob_raw.items():
+        try:
+            mobility[str(name)] = Mobility.parse(str(value))
+        except ValueError as exc:
+            raise ConfigError(f"{source}: mobility.{name}: {exc}") from None
+    lists: dict[str, tuple[str, ...]] = {}
+    for list_name, names in lists_raw.items():
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise ConfigError(f"{source}: class_lists.{list_name} must be a list of names")
+        missing = [n for n in names if n not in mobility]
+        if missing:
+            raise ConfigError(
+                f"{source}: class_lists.{list_name}: no mobility for {missing[:5]}"
+            )
+        lists[str(list_name)] = tuple(names)
+    return ClassTable(class_lists=lists, mobility=mobility, source=source)
+
+
+def load_class_table(path: str | Path | None = None) -> ClassTable:
+    """Load a class table; ``None`` loads the shipped ``config/classes.yaml``."""
+    p = Path(path) if path is not None else config_dir() / "classes.yaml"
+    return _load_cached(str(p.resolve()))
+
+
+@lru_cache(maxsize=8)
+def _load_cached(path: str) -> ClassTable:
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read class table ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: malformed YAML ({exc})") from None
+    return _parse(data, path)

@@ -1,0 +1,1 @@
+"""The command line: parse arguments, drive progress bars, map errors to exit codes."""

@@ -1,0 +1,205 @@
+"""The configuration tree: one pydantic model per stage, defaults in code, YAML for overrides.
+
+Every model forbids unknown keys, so a typo in a YAML file is an error that names
+the key, not a silently ignored setting. The effective configuration is written
+beside every output.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .errors import ConfigError
+
+__all__ = [
+    "Mount",
+    "SimRobotConfig",
+    "SimLidarConfig",
+    "SimCameraConfig",
+    "SimOdometryConfig",
+    "SimGroundTruthConfig",
+    "SimConfig",
+    "load_yaml",
+    "load_model",
+    "merge_overrides",
+]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Mount(_Model):
+    """A sensor's pose on the robot: ``T_base_sensor`` as translation (m) and roll-pitch-yaw (rad)."""
+
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+# Camera optical frame (z forward, x right, y down) looking along base_link +x.
+OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)
+
+
+class SimRobotConfig(_Model):
+    """The simulated base: footprint, frames and motion limits."""
+
+    base_frame: str = "base_link"
+    length: float = Field(0.9, gt=0, description="footprint length along x, m (MiR100: 0.89)")
+    width: float = Field(0.6, gt=0, description="footprint width along y, m (MiR100: 0.58)")
+    body_height: float = Field(0.6, gt=0, description="obstacles below this height block the robot, m")
+    max_speed: float = Field(0.7, gt=0, description="m/s")
+    max_accel: float = Field(0.5, gt=0, description="m/s²")
+    max_lateral_accel: float = Field(0.4, gt=0, description="m/s²")
+    max_yaw_rate: float = Field(math.radians(50), gt=0, description="rad/s")
+    max_yaw_accel: float = Field(math.radians(90), gt=0, description="rad/s²")
+    corner_radius: float = Field(0.8, gt=0, description="largest fillet radius at route corners, m")
+    clearance: float = Field(0.04, ge=0, description="minimum distance to obstacles, m")
+    settle_s: float = Field(1.0, ge=0, description="standing time before and after the tour, s")
+
+
+class SimLidarConfig(_Model):
+    """A 2D LiDAR publishing ``sensor_msgs/LaserScan``. Default: MiR-style front-left corner mount."""
+
+    topic: str = "/scan"
+    frame_id: str = "laser"
+    mount: Mount = Mount(xyz=(0.38, 0.23, 0.2), rpy=(0.0, 0.0, math.pi / 4))
+    fov_deg: float = Field(270.0, gt=0, le=360)
+    resolution_deg: float = Field(0.5, gt=0)
+    rate_hz: float = Field(15.0, gt=0)
+    range_min: float = Field(0.05, ge=0)
+    range_max: float = Field(20.0, gt=0)
+    noise_std: float = Field(0.01, ge=0, description="Gaussian range noise, m")
+    dropout_prob: float = Field(0.005, ge=0, le=1, description="chance a beam returns nothing (+inf)")
+    sweep: bool = Field(True, description="fire beams over the scan period while the robot moves")
+    latency_s: float = Field(0.005, ge=0, description="bag time minus header stamp")
+
+    @property
+    def n_beams(self) -> int:
+        return int(round(self.fov_deg / self.resolution_deg)) + 1
+
+
+class SimCameraConfig(_Model):
+    """An RGB camera plus a ground-truth label image topic and ``CameraInfo``."""
+
+    image_topic: str = "/camera/image_raw"
+    info_topic: str = "/camera/camera_info"
+    label_topic: str = "/camera/labels"
+    frame_id: str = "camera_optical_frame"
+    mount: Mount = Mount(xyz=(0.42, 0.0, 0.5), rpy=OPTICAL_RPY)
+    width: int = Field(640, gt=0)
+    height: int = Field(480, gt=0)
+    # The research's intrinsics.
+    K: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]] = (
+        (601.80, 0.0, 328.17),
+        (0.0, 600.12, 240.45),
+        (0.0, 0.0, 1.0),
+    )
+    rate_hz: float = Field(5.0, gt=0)
+    image_format: Literal["raw", "jpeg"] = "raw"
+    jpeg_quality: int = Field(90, ge=10, le=100)
+    label_encoding: Literal["mono16", "mono8"] = "mono16"
+    label_classes: str = Field("coco", description="class list in config/classes.yaml naming label values")
+    noise_std: float = Field(2.0, ge=0, description="pixel noise, 8-bit levels")
+    latency_s: float = Field(0.03, ge=0)
+
+    @field_validator("mount")
+    @classmethod
+    def _level(cls, v: Mount) -> Mount:
+        # The renderer casts one ray per column, exact only for a level, unrolled camera:
+        # optical z horizontal and optical y pointing straight down.
+        from scipy.spatial.transform import Rotation
+
+        r = Rotation.from_euler("xyz", v.rpy).as_matrix()
+        if abs(r[2, 2]) > 1e-6 or r[2, 1] > -1 + 1e-6:
+            raise ValueError("the simulated camera must be level (optical z horizontal, y down), "
+                             "e.g. rpy = [-1.5708, 0, -1.5708] looking along base_link +x")
+        return v
+
+
+class SimOdometryConfig(_Model):
+    """Wheel odometry with realistic error: scale error, yaw drift and noise."""
+
+    topic: str = "/odom"
+    frame_id: str = "odom"
+    rate_hz: float = Field(50.0, gt=0)
+    publish_tf: bool = Field(True, description="also publish odom→base_link on /tf")
+    scale_error: tuple[float, float] = Field((0.01, 0.02), description="|distance scale error| range")
+    yaw_scale_error: tuple[float, float] = Field((0.01, 0.02), description="|yaw scale error| range")
+    yaw_drift_deg_per_m: float = Field(0.15, ge=0, description="heading bias per metre travelled")
+    noise_dist: float = Field(0.003, ge=0, description="distance noise, m per sqrt(m)")
+    noise_yaw_deg: float = Field(0.25, ge=0, description="heading noise, deg per sqrt(m + rad)")
+    latency_s: float = Field(0.002, ge=0)
+
+
+class SimGroundTruthConfig(_Model):
+    """Ground truth: pose topic and the maps written beside the bag."""
+
+    pose_topic: str = "/ground_truth/odom"
+    rate_hz: float = Field(50.0, gt=0)
+    map_resolution: float = Field(0.05, gt=0, description="m per cell of the ground-truth maps")
+    map_margin: float = Field(1.0, ge=0, description="m of free border around the world")
+    people_radius: float = Field(0.25, gt=0, description="body disc people sweep, m")
+
+
+class SimConfig(_Model):
+    """Everything ``semmap simulate`` needs besides the world itself."""
+
+    robot: SimRobotConfig = SimRobotConfig()
+    lidar: SimLidarConfig = SimLidarConfig()
+    camera: SimCameraConfig = SimCameraConfig()
+    odometry: SimOdometryConfig = SimOdometryConfig()
+    ground_truth: SimGroundTruthConfig = SimGroundTruthConfig()
+    tf_topic: str = "/tf"
+    tf_static_topic: str = "/tf_static"
+    start_time_ns: int = Field(1_767_225_600_000_000_000, description="2026-01-01T00:00:00Z")
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file safely; errors name the file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read ({exc.strerror})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}:{where} malformed YAML") from None
+
+
+def merge_overrides(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Recursively merge ``over`` into a copy of ``base`` (``over`` wins)."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge_overrides(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def load_model(model: type[_Model], data: Any, source: str) -> Any:
+    """Validate ``data`` into ``model``; the error names the source and the first bad field."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping at the top level")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"]) or "<root>"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        raise ConfigError(f"{source}: {loc}: {msg}") from None

@@ -1,0 +1,1 @@
+"""Reading and writing what crosses the file system: bags, maps, calibration."""

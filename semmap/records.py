@@ -1,0 +1,251 @@
+"""Frozen records that cross stage boundaries.
+
+Units are in the field names or docstrings: metres, radians, seconds, and
+integer nanoseconds for timestamps (as rosbags gives them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Literal, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .geometry import is_rotation, se3_inverse
+
+__all__ = [
+    "Mobility",
+    "Pose2",
+    "CameraIntrinsics",
+    "Calibration",
+    "Scan",
+    "Image",
+    "GridSpec",
+]
+
+
+class Mobility(IntEnum):
+    """How a class moves. The value is what label and mobility arrays store."""
+
+    UNKNOWN = 0  #: not seen by the camera (out of view, behind it, or occluded)
+    STATIC = 1  #: inside the image, on no object mask: walls, pillars, fixed structure
+    SEMI_STATIC = 2  #: movable but currently still: chairs, tables, beds, carts, plants
+    DYNAMIC = 3  #: moves on its own: people, animals
+
+    @classmethod
+    def parse(cls, name: str) -> Mobility:
+        try:
+            return cls[name.strip().upper()]
+        except KeyError:
+            valid = ", ".join(m.name.lower() for m in cls)
+            raise ValueError(f"unknown mobility {name!r} (expected one of {valid})") from None
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+class Pose2(NamedTuple):
+    """A pose on the floor, SE(2): metres and radians."""
+
+    x: float
+    y: float
+    yaw: float
+
+    def as_array(self) -> NDArray[np.float64]:
+        return np.array([self.x, self.y, self.yaw], dtype=np.float64)
+
+
+def _matrix(a: object, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
+    m = np.array(a, dtype=np.float64)
+    if m.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f"{name} contains NaN or inf")
+    m.setflags(write=False)
+    return m
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """A camera model: pinhole with OpenCV distortion, or OpenCV fisheye.
+
+    ``K`` is the 3x3 camera matrix in pixels; ``D`` the distortion coefficients
+    (pinhole: k1 k2 p1 p2 [k3 [k4 k5 k6]]; fisheye: k1 k2 k3 k4).
+    """
+
+    width: int
+    height: int
+    K: NDArray[np.float64]
+    D: NDArray[np.float64] = field(default_factory=lambda: np.zeros(5))
+    model: Literal["pinhole", "fisheye"] = "pinhole"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "K", _matrix(self.K, (3, 3), "K"))
+        d = np.array(self.D, dtype=np.float64).ravel()
+        d.setflags(write=False)
+        object.__setattr__(self, "D", d)
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.model not in ("pinhole", "fisheye"):
+            raise ValueError(f"camera model must be 'pinhole' or 'fisheye', got {self.model!r}")
+        if self.model == "fisheye" and d.size != 4:
+            raise ValueError(f"fisheye distortion needs 4 coefficients, got {d.size}")
+        if self.model == "pinhole" and d.size not in (4, 5, 8, 12, 14):
+            raise ValueError(f"pinhole distortion needs 4, 5, 8, 12 or 14 coefficients, got {d.size}")
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+            raise ValueError("K must have positive focal lengths fx, fy")
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Camera intrinsics plus the LiDAR→camera extrinsic.
+
+    ``T_cam_lidar`` maps points in the LiDAR frame into the camera optical
+    frame: ``p_cam = T_cam_lidar @ p_lidar``.
+    """
+
+    intrinsics: CameraIntrinsics
+    T_cam_lidar: NDArray[np.float64]
+    camera_frame: str = "camera_optical_frame"
+    lidar_frame: str = "laser"
+
+    def __post_init__(self) -> None:
+        t = _matrix(self.T_cam_lidar, (4, 4), "T_cam_lidar")
+        if not is_rotation(t[:3, :3], tol=1e-5):
+            raise ValueError("T_cam_lidar rotation is not orthonormal with det +1")
+        if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0]):
+            raise ValueError("T_cam_lidar last row must be [0, 0, 0, 1]")
+        object.__setattr__(self, "T_cam_lidar", t)
+
+    @property
+    def T_lidar_cam(self) -> NDArray[np.float64]:
+        """The inverse: maps camera-frame points into the LiDAR frame."""
+        return se3_inverse(self.T_cam_lidar)
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One 2D LiDAR scan as in ``sensor_msgs/LaserScan`` (REP-117 invalid values allowed).
+
+    ``stamp_ns`` is the acquisition time of the first beam.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    angle_min: float
+    angle_increment: float
+    ranges: NDArray[np.float32]
+    range_min: float
+    range_max: float
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+    intensities: NDArray[np.float32] | None = None
+
+    def __post_init__(self) -> None:
+        r = np.asarray(self.ranges, dtype=np.float32)
+        r.setflags(write=False)
+        object.__setattr__(self, "ranges", r)
+
+    @property
+    def angles(self) -> NDArray[np.float64]:
+        return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
+
+
+@dataclass(frozen=True)
+class Image:
+    """A camera or label image with its capture stamp.
+
+    ``encoding`` follows ``sensor_msgs/Image``: ``rgb8``, ``bgr8``, ``mono8``,
+    ``mono16``, ``16UC1``... Label images are ``uint16`` (``mono16``) or ``uint8``
+    (``mono8``): value k > 0 is class ``names[k-1]``, 0 is no object.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    data: NDArray[np.generic]
+    encoding: str
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.data)
+        a.setflags(write=False)
+        object.__setattr__(self, "data", a)
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A regular 2D grid on the floor.
+
+    Cell ``(row, col)`` covers ``x ∈ [origin_x + col·res, origin_x + (col+1)·res)`` and
+    ``y ∈ [origin_y + row·res, …)``: row 0 is the *lowest* y, as in the world. (Map
+    images flip this: their top row is the highest y.) ``origin`` is the lower-left
+    corner of cell (0, 0), which is what map_server's ``origin`` means.
+    """
+
+    resolution: float
+    origin_x: float
+    origin_y: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        if not self.resolution > 0:
+            raise ValueError(f"grid resolution must be positive, got {self.resolution}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"grid size must be positive, got {self.width}x{self.height}")
+
+    @classmethod
+    def covering(cls, x_min: float, y_min: float, x_max: float, y_max: float, resolution: float) -> GridSpec:
+        """The smallest grid, aligned to multiples of ``resolution``, covering a box."""
+        ox = np.floor(x_min / resolution) * resolution
+        oy = np.floor(y_min / resolution) * resolution
+        w = int(np.ceil((x_max - ox) / resolution - 1e-9))
+        h = int(np.ceil((y_max - oy) / resolution - 1e-9))
+        return cls(float(resolution), float(ox), float(oy), max(w, 1), max(h, 1))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+    def world_to_cell(self, xy: NDArray[np.float64]) -> NDArray[np.intp]:
+        """(N, 2) world points → (N, 2) integer (row, col); may be outside the grid."""
+        xy = np.asarray(xy, dtype=np.float64)
+        col = np.floor((xy[..., 0] - self.origin_x) / self.resolution).astype(np.intp)
+        row = np.floor((xy[..., 1] - self.origin_y) / self.resolution).astype(np.intp)
+        return np.stack([row, col], axis=-1)
+
+    def cell_centres(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(x, y) of every cell centre, each (H, W)."""
+        xs = self.origin_x + (np.arange(self.width) + 0.5) * self.resolution
+        ys = self.origin_y + (np.arange(self.height) + 0.5) * self.resolution
+        return np.meshgrid(xs, ys)
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"resolution": self.resolution, "origin_x": self.origin_x, "origin_y": self.origin_y,
+                "width": self.width, "height": self.height}

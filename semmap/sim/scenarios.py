@@ -1,0 +1,322 @@
+"""Built-in scenarios: ``demo``, ``ward``, ``office``, ``occlusion``, ``ward_b``, ``office_b``.
+
+Each returns a :class:`Scenario`: the world, configuration overrides for the
+simulator, and for the ``_b`` variants the base world they change. Geometry is
+fixed per scenario; the seed only drives sensor noise and odometry error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from .world import (
+    Person,
+    World,
+    WorldObject,
+    bed,
+    cabinet,
+    chair,
+    couch,
+    monitor,
+    pillar,
+    potted_plant,
+    screen,
+    table,
+    wall,
+)
+
+__all__ = ["Scenario", "SCENARIOS", "get_scenario"]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    world: World
+    overrides: dict[str, Any] = field(default_factory=dict)
+    base: World | None = None  # for change scenarios: the world before the changes
+
+
+class _Ids:
+    def __init__(self, start: int) -> None:
+        self.n = start
+
+    def __call__(self) -> int:
+        self.n += 1
+        return self.n
+
+
+def _walls(ids: _Ids, segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
+           thickness: float = 0.12, height: float = 2.6) -> list[WorldObject]:
+    """Straight walls with door gaps: each segment is (p0, p1, [(centre along, width), ...])."""
+    out = []
+    for p0, p1, doors in segments:
+        a, b = np.asarray(p0, float), np.asarray(p1, float)
+        length = float(np.linalg.norm(b - a))
+        u = (b - a) / length
+        cuts = [0.0]
+        for centre, width in sorted(doors):
+            cuts += [centre - width / 2, centre + width / 2]
+        cuts.append(length)
+        for s0, s1 in zip(cuts[::2], cuts[1::2]):
+            if s1 - s0 > 1e-6:
+                q0, q1 = a + u * s0, a + u * s1
+                out.append(wall(ids(), q0[0], q0[1], q1[0], q1[1], thickness, height))
+    return out
+
+
+_SHIRTS = [(180, 40, 40), (40, 120, 180), (230, 200, 60), (90, 160, 90), (240, 240, 240), (120, 60, 140),
+           (200, 110, 50), (70, 70, 80)]
+
+
+def _person(pid: int, k: int, waypoints: list[tuple[float, float]], **kw: Any) -> Person:
+    return Person(id=pid, name=f"person_{pid}", waypoints=np.asarray(waypoints, float),
+                  shirt=_SHIRTS[k % len(_SHIRTS)], **kw)
+
+
+# ---------------------------------------------------------------------------------------
+# demo: one 8 m x 6 m room, about 35 s
+
+
+def demo() -> Scenario:
+    ids = _Ids(0)
+    objs = _walls(ids, [((0, 0), (8, 0), []), ((8, 0), (8, 6), []), ((8, 6), (0, 6), []),
+                        ((0, 6), (0, 0), [(3.0, 1.0)])])
+    objs += [
+        pillar(ids(), 2.5, 4.5),
+        table(ids(), (5.0, 4.2, 0.0)),
+        chair(ids(), (4.6, 3.4, 0.0)),
+        chair(ids(), (5.4, 3.4, 0.0)),
+        couch(ids(), (2.2, 0.65, 0.0)),
+        potted_plant(ids(), 7.4, 0.6),
+        screen(ids(), (0.45, 4.0, -math.pi / 2)),
+    ]
+    people = (
+        _person(501, 0, [(3.0, 1.45), (6.3, 1.45)], speed=1.1, loop=False),
+        _person(502, 1, [(6.0, 2.95)]),  # stands still beside the route the whole tour
+    )
+    route = [(1.2, 2.2), (7.0, 2.2), (7.0, 5.3), (1.2, 5.3), (1.2, 2.8)]
+    return Scenario(World("demo", tuple(objs), people, np.asarray(route, float), start_yaw=0.0,
+                          description="A small room: table, chairs, couch, plant, screen, one walking "
+                                      "and one standing person."))
+
+
+# ---------------------------------------------------------------------------------------
+# ward: a hospital corridor with patient rooms on both sides
+
+
+def _ward_building(ids: _Ids) -> list[WorldObject]:
+    doors = [(3.0 + 6.0 * i, 1.4) for i in range(5)]
+    segs = [
+        ((0, 0), (30, 0), doors),  # corridor south wall
+        ((0, 2.4), (30, 2.4), doors),  # corridor north wall
+        ((0, -5.0), (0, 7.4), []),
+        ((30, -5.0), (30, 7.4), []),
+        ((0, 7.4), (30, 7.4), []),
+        ((0, -5.0), (30, -5.0), []),
+    ]
+    segs += [((6.0 * i, 2.4), (6.0 * i, 7.4), []) for i in range(1, 5)]
+    segs += [((6.0 * i, 0.0), (6.0 * i, -5.0), []) for i in range(1, 5)]
+    return _walls(ids, segs)
+
+
+def _ward_furniture(ids: _Ids) -> list[WorldObject]:
+    objs: list[WorldObject] = []
+    for i in range(5):
+        xr = 6.0 * i
+        # north room i: beds with headboards on the north wall, a chair between them
+        objs += [bed(ids(), (xr + 1.6, 6.24, 0.0)), bed(ids(), (xr + 4.4, 6.24, 0.0)),
+                 chair(ids(), (xr + 3.0, 6.7, math.pi)), potted_plant(ids(), xr + 0.45, 2.95)]
+        # south room i: mirrored
+        objs += [bed(ids(), (xr + 1.6, -3.84, math.pi)), bed(ids(), (xr + 4.4, -3.84, math.pi)),
+                 chair(ids(), (xr + 3.0, -4.3, 0.0))]
+    # waiting chairs along the corridor's north wall, a plant and a screen in the corridor
+    for x in (4.6, 5.15, 16.6, 17.15):
+        objs.append(chair(ids(), (x, 2.08, math.pi)))
+    objs.append(potted_plant(ids(), 12.0, 2.0))
+    objs.append(screen(ids(), (23.8, 2.15, math.pi)))
+    return objs
+
+
+def _ward_people(variant: int) -> tuple[Person, ...]:
+    if variant == 0:
+        return (
+            _person(501, 0, [(2.0, 0.5), (28.5, 0.5)], speed=1.3, loop=False, phase_s=4.0),
+            _person(502, 1, [(10.3, 4.6)]),  # a visitor standing by a bed in room N2
+            _person(503, 2, [(2.4, 1.25), (14.6, 1.25), (15.0, 4.6), (15.0, 4.6)], speed=0.85, loop=False,
+                    pauses=((2, 120.0),)),  # walks just ahead of the robot, then into room N3
+            _person(504, 3, [(19.0, -0.8), (19.0, -2.5)], speed=0.6, loop=False, pauses=((0, 5.0), (1, 5.0))),
+            _person(505, 4, [(26.5, 0.45), (27.0, -3.0)], speed=1.0, loop=False, pauses=((0, 45.0), (1, 200.0))),
+            _person(506, 5, [(25.9, 0.5)]),  # chatting with 505, stays
+        )
+    return (
+        _person(511, 6, [(28.5, 0.55), (2.0, 0.55)], speed=1.2, loop=False, phase_s=2.0),
+        _person(512, 7, [(22.4, -2.0)]),
+        _person(513, 0, [(13.0, 0.5), (13.0, 0.5)], pauses=((0, 30.0),)),
+        _person(514, 1, [(8.0, 3.5), (10.5, 3.5)], speed=0.7, loop=False, pauses=((0, 4.0),)),
+    )
+
+
+def _ward_route(reverse: bool) -> list[tuple[float, float]]:
+    route = [(1.0, 1.2), (9.0, 1.2), (9.0, 4.3), (9.0, 1.2), (21.0, 1.2), (21.0, -1.9), (21.0, 1.2),
+             (28.8, 1.2), (27.0, 1.2), (1.6, 1.2)]
+    if reverse:
+        route = [(28.8, 1.2), (21.0, 1.2), (21.0, -1.9), (21.0, 1.2), (9.0, 1.2), (9.0, 4.3), (9.0, 1.2),
+                 (1.0, 1.2), (3.0, 1.2), (27.5, 1.2)]
+    return route
+
+
+def ward() -> Scenario:
+    ids = _Ids(0)
+    objs = _ward_building(ids) + _ward_furniture(ids)
+    return Scenario(World("ward", tuple(objs), _ward_people(0), np.asarray(_ward_route(False), float),
+                          start_yaw=0.0,
+                          description="Hospital corridor, 30 m, with ten patient rooms (beds, chairs, plants), "
+                                      "waiting chairs, a screen, and six people: walking, standing for the "
+                                      "whole tour, pausing, and walking just ahead of the robot."))
+
+
+def ward_b() -> Scenario:
+    base = ward().world
+    objs = {o.name: o for o in base.objects}
+    # beds in room N2 and S4 rolled, one corridor chair taken away, plant and screen moved
+    moved = {
+        "bed_34": objs["bed_34"].moved(0.0, -1.0),  # room N2, first bed pulled from the wall
+        "bed_60": objs["bed_60"].moved(-0.7, 0.5),  # room S4
+        "potted_plant_51": objs["potted_plant_51"].moved(1.2, 0.0),
+        "tv_74": objs["tv_74"].moved(-2.3, 0.0),
+    }
+    removed = {"chair_70", "chair_71"}
+    new_objs = [moved.get(o.name, o) for o in base.objects if o.name not in removed]
+    new_objs.append(cabinet(900, (19.6, 2.1, 0.0), w=1.2, d=0.45))  # a new built-in cabinet
+    world = World("ward_b", tuple(new_objs), _ward_people(1), np.asarray(_ward_route(True), float),
+                  start_yaw=math.pi,
+                  description="The ward a week later: two beds moved, two waiting chairs gone, a plant and "
+                              "the screen moved, a new cabinet in the corridor, other people; the tour "
+                              "starts from the east end.")
+    return Scenario(world, base=base)
+
+
+# ---------------------------------------------------------------------------------------
+# office: open plan with pillars, desks, a lounge
+
+
+def _office_objects(ids: _Ids, variant: int) -> list[WorldObject]:
+    objs = _walls(ids, [((0, 0), (20, 0), []), ((20, 0), (20, 14), []), ((20, 14), (0, 14), []),
+                        ((0, 14), (0, 0), [(7.0, 1.2)])])
+    objs += [pillar(ids(), x, y, 0.5) for x in (5.0, 10.0, 15.0) for y in (4.5, 9.5)]
+    for x in (4.0, 7.5, 11.0, 14.5):  # south desks, users face north
+        objs += [table(ids(), (x, 2.6, 0.0), 1.6, 0.8), chair(ids(), (x - 0.4, 1.8, 0.0)),
+                 chair(ids(), (x + 0.4, 1.8, 0.0)), monitor(ids(), (x, 2.8, 0.0))]
+    for x in (4.0, 7.5, 11.0):  # north desks, users face south
+        objs += [table(ids(), (x, 11.6, 0.0), 1.6, 0.8), chair(ids(), (x - 0.4, 12.4, math.pi)),
+                 chair(ids(), (x + 0.4, 12.4, math.pi)), monitor(ids(), (x, 11.4, math.pi))]
+    objs += [
+        couch(ids(), (16.5, 13.3, math.pi)),
+        table(ids(), (16.5, 12.0, 0.0), 1.0, 0.6),
+        potted_plant(ids(), 19.3, 13.3),
+        potted_plant(ids(), 0.7, 13.3),
+        potted_plant(ids(), 19.3, 0.7),
+        screen(ids(), (19.55, 11.8, math.pi / 2)),
+    ]
+    return objs
+
+
+def _office_people(variant: int) -> tuple[Person, ...]:
+    if variant == 0:
+        return (
+            _person(501, 2, [(3.0, 7.95), (17.0, 7.95)], speed=1.3, loop=False),
+            _person(502, 3, [(5.75, 2.4)]),  # standing between desks the whole tour
+            _person(503, 4, [(12.5, 6.0), (12.5, 8.6), (7.5, 8.6), (7.5, 6.0)], speed=1.1),
+            _person(504, 5, [(17.6, 11.5)]),  # standing in the lounge
+            _person(505, 6, [(9.25, 11.0), (12.8, 11.0)], speed=0.9, loop=False, pauses=((0, 20.0), (1, 20.0))),
+        )
+    return (
+        _person(511, 7, [(16.0, 8.0), (3.5, 8.0)], speed=1.2, loop=False),
+        _person(512, 0, [(9.25, 2.4)]),
+        _person(513, 1, [(2.6, 12.0), (2.6, 5.0)], speed=0.8, loop=False, pauses=((1, 10.0),)),
+    )
+
+
+_OFFICE_ROUTE = [(1.6, 7.0), (18.2, 7.0), (18.2, 10.5), (1.8, 10.5), (1.8, 3.6), (17.0, 3.6), (8.0, 3.6)]
+
+
+def office() -> Scenario:
+    ids = _Ids(0)
+    objs = _office_objects(ids, 0)
+    return Scenario(World("office", tuple(objs), _office_people(0), np.asarray(_OFFICE_ROUTE, float),
+                          start_yaw=0.0,
+                          description="Open-plan office, 20 m x 14 m: six pillars, seven desks with chairs and "
+                                      "monitors, a lounge with couch, plants and a screen, five people."))
+
+
+def office_b() -> Scenario:
+    base = office().world
+    objs = {o.name: o for o in base.objects}
+    moved = {
+        "dining_table_11": objs["dining_table_11"].moved(0.0, 0.0, math.pi / 2),  # desk turned
+        "chair_12": objs["chair_12"].moved(-0.6, -0.3),
+        "couch_39": objs["couch_39"].moved(-2.2, 0.0),
+        "potted_plant_41": objs["potted_plant_41"].moved(0.0, -1.5),
+    }
+    removed = {"chair_17", "chair_18"}
+    new_objs = [moved.get(o.name, o) for o in base.objects if o.name not in removed]
+    new_objs.append(cabinet(900, (12.5, 13.7, 0.0), w=1.6, d=0.45))
+    route = [(17.0, 3.6), (17.2, 3.6), (18.2, 3.6), (18.2, 7.0), (1.6, 7.0), (1.8, 10.5), (17.5, 10.5)]
+    world = World("office_b", tuple(new_objs), _office_people(1), np.asarray(route, float), start_yaw=math.pi / 2,
+                  description="The office later: a desk turned, chairs moved or gone, the couch and a plant "
+                              "moved, a new cabinet, other people; the tour starts in the south-east.")
+    return Scenario(world, base=base)
+
+
+# ---------------------------------------------------------------------------------------
+# occlusion: people and chairs close in front of the robot, walls behind
+
+
+def occlusion() -> Scenario:
+    ids = _Ids(0)
+    objs = _walls(ids, [((0, 0), (12, 0), []), ((12, 0), (12, 4), []), ((12, 4), (0, 4), []),
+                        ((0, 4), (0, 0), [])])
+    objs += [
+        chair(ids(), (3.2, 2.1, math.pi)),
+        chair(ids(), (5.6, 2.4, math.pi * 0.8)),
+        chair(ids(), (7.4, 0.35, 0.0)),
+        table(ids(), (9.0, 2.6, 0.0), 1.2, 0.7),
+        chair(ids(), (9.0, 2.05, 0.0)),
+        potted_plant(ids(), 6.6, 3.45),
+    ]
+    people = (
+        _person(501, 0, [(2.2, 2.2)]),
+        _person(502, 1, [(4.4, 2.0)]),
+        _person(503, 2, [(6.2, 0.45)]),
+        _person(504, 3, [(8.0, 2.3)]),
+        _person(505, 4, [(11.1, 1.2)]),  # right in front of the route's end, the end wall behind
+        _person(506, 5, [(3.0, 3.3), (10.0, 3.3)], speed=0.5, loop=False),
+    )
+    route = [(0.8, 1.2), (10.2, 1.2), (2.0, 1.2)]
+    return Scenario(World("occlusion", tuple(objs), people, np.asarray(route, float), start_yaw=0.0,
+                          description="People and chairs 1-2 m in front of the robot with walls behind them: "
+                                      "with the corner LiDAR, background points land on foreground masks."),
+                    overrides={"robot": {"max_speed": 0.4}})
+
+
+SCENARIOS: dict[str, Callable[[], Scenario]] = {
+    "demo": demo,
+    "ward": ward,
+    "ward_b": ward_b,
+    "office": office,
+    "office_b": office_b,
+    "occlusion": occlusion,
+}
+
+
+def get_scenario(name: str) -> Scenario:
+    try:
+        return SCENARIOS[name]()
+    except KeyError:
+        known = ", ".join(SCENARIOS)
+        raise ConfigError(f"unknown scenario {name!r} (built in: {known}; or give a world .yaml file)") from None

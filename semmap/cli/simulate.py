@@ -18,9 +18,10 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
                     "and write it as a real bag plus exact ground truth and preview pictures.",
         epilog=f"built-in scenarios: {', '.join(SCENARIOS)}",
     )
-    p.add_argument("--scenario", required=True, metavar="NAME|WORLD.yaml",
+    p.add_argument("--scenario", metavar="NAME|WORLD.yaml",
                    help="a built-in scenario, or a world file (e.g. ground_truth/world.yaml of an earlier run)")
-    p.add_argument("--out", required=True, type=Path, metavar="PATH", help="output folder (must not exist)")
+    p.add_argument("--out", type=Path, metavar="PATH", help="output folder (must not exist)")
+    p.add_argument("--list-scenarios", action="store_true", help="list the built-in scenarios and exit")
     p.add_argument("--format", dest="fmt", default="ros1", choices=["ros1", "mcap", "sqlite3"],
                    help="bag format: ROS1 .bag, or ROS2 with mcap or sqlite3 storage (default: ros1)")
     p.add_argument("--seed", type=int, default=0, help="noise seed; the same seed gives the same bag (default: 0)")
@@ -31,8 +32,17 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..errors import ConfigError
     from ..io.bag import bag_info
+    from ..sim.scenarios import SCENARIOS
     from ..sim.tour import simulate
+
+    if args.list_scenarios:
+        for name, factory in SCENARIOS.items():
+            print(f"{name:<10} {factory().world.description}")
+        return 0
+    if args.scenario is None or args.out is None:
+        raise ConfigError("--scenario and --out are required (or use --list-scenarios)")
 
     with progress_bar(f"simulating {args.scenario}", enabled=not args.quiet) as progress:
         result = simulate(args.scenario, args.out, fmt=args.fmt, seed=args.seed, config=args.config,

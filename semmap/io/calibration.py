@@ -25,6 +25,7 @@ import yaml
 
 from ..errors import ConfigError
 from ..records import Calibration, CameraIntrinsics
+from .yamlio import write_yaml
 
 __all__ = ["write_calibration", "read_calibration", "calibration_to_dict", "calibration_from_dict"]
 
@@ -54,11 +55,9 @@ def calibration_to_dict(calib: Calibration, extra: dict[str, Any] | None = None)
 
 
 def write_calibration(path: str | Path, calib: Calibration, extra: dict[str, Any] | None = None) -> Path:
-    p = Path(path)
     header = ("# semmap calibration. T_cam_lidar maps LiDAR-frame points into the camera optical frame\n"
               "# (p_cam = T_cam_lidar @ p_lidar); T_lidar_cam is its inverse.\n")
-    p.write_text(header + yaml.safe_dump(calibration_to_dict(calib, extra), sort_keys=False), encoding="utf-8")
-    return p
+    return write_yaml(path, calibration_to_dict(calib, extra), header)
 
 
 def calibration_from_dict(data: Any, source: str) -> Calibration:

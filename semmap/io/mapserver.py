@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..records import GridSpec
+from .yamlio import write_yaml
 
 __all__ = ["OCCUPIED", "FREE", "UNKNOWN", "write_map", "read_map", "MapImage"]
 
@@ -57,8 +58,7 @@ def write_map(
         "occupied_thresh": float(occupied_thresh),
         "free_thresh": float(free_thresh),
     }
-    yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
-    return yaml_path
+    return write_yaml(yaml_path, meta)
 
 
 @dataclass(frozen=True)

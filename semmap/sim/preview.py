@@ -93,7 +93,7 @@ def camera_preview(path: Path, rgb: NDArray[np.uint8], label: NDArray[np.uint16]
     uv, inside = project_points(intr.K, intr.D, se3_apply(calib.T_cam_lidar, pts), intr.width, intr.height,
                                 intr.model)
     mob = np.where(rows[ok] >= 0, row_mobility[np.maximum(rows[ok], 0)], 0)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.3), dpi=110)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.3), dpi=90)
     axes[0].imshow(rgb)
     axes[0].set_title("RGB")
     axes[1].imshow(overlay.astype(np.uint8))

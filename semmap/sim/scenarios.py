@@ -150,14 +150,15 @@ def _ward_people(variant: int) -> tuple[Person, ...]:
             _person(503, 2, [(2.4, 1.25), (14.6, 1.25), (15.0, 4.6), (15.0, 4.6)], speed=0.85, loop=False,
                     pauses=((2, 120.0),)),  # walks just ahead of the robot, then into room N3
             _person(504, 3, [(19.0, -0.8), (19.0, -2.5)], speed=0.6, loop=False, pauses=((0, 5.0), (1, 5.0))),
-            _person(505, 4, [(26.5, 0.45), (27.0, -3.0)], speed=1.0, loop=False, pauses=((0, 45.0), (1, 200.0))),
+            _person(505, 4, [(26.5, 0.45), (27.0, 0.1), (27.0, -3.0)], speed=1.0, loop=False,
+                    pauses=((0, 45.0), (2, 200.0))),
             _person(506, 5, [(25.9, 0.5)]),  # chatting with 505, stays
         )
     return (
         _person(511, 6, [(28.5, 0.55), (2.0, 0.55)], speed=1.2, loop=False, phase_s=2.0),
         _person(512, 7, [(22.4, -2.0)]),
         _person(513, 0, [(13.0, 0.5), (13.0, 0.5)], pauses=((0, 30.0),)),
-        _person(514, 1, [(8.0, 3.5), (10.5, 3.5)], speed=0.7, loop=False, pauses=((0, 4.0),)),
+        _person(514, 1, [(7.3, 3.1), (7.3, 4.6)], speed=0.7, loop=False, pauses=((0, 4.0),)),
     )
 
 
@@ -185,12 +186,12 @@ def ward_b() -> Scenario:
     objs = {o.name: o for o in base.objects}
     # beds in room N2 and S4 rolled, one corridor chair taken away, plant and screen moved
     moved = {
-        "bed_34": objs["bed_34"].moved(0.0, -1.0),  # room N2, first bed pulled from the wall
-        "bed_60": objs["bed_60"].moved(-0.7, 0.5),  # room S4
-        "potted_plant_51": objs["potted_plant_51"].moved(1.2, 0.0),
-        "tv_74": objs["tv_74"].moved(-2.3, 0.0),
+        "bed_33": objs["bed_33"].moved(0.0, -0.9),  # room N2, second bed pulled from the wall
+        "bed_50": objs["bed_50"].moved(-0.7, 0.5),  # room S4, first bed
+        "potted_plant_64": objs["potted_plant_64"].moved(1.2, 0.0),  # corridor plant
+        "tv_65": objs["tv_65"].moved(-2.3, 0.0),  # corridor screen
     }
-    removed = {"chair_70", "chair_71"}
+    removed = {"chair_60", "chair_61"}  # two waiting chairs
     new_objs = [moved.get(o.name, o) for o in base.objects if o.name not in removed]
     new_objs.append(cabinet(900, (19.6, 2.1, 0.0), w=1.2, d=0.45))  # a new built-in cabinet
     world = World("ward_b", tuple(new_objs), _ward_people(1), np.asarray(_ward_route(True), float),
@@ -242,7 +243,7 @@ def _office_people(variant: int) -> tuple[Person, ...]:
     )
 
 
-_OFFICE_ROUTE = [(1.6, 7.0), (18.2, 7.0), (18.2, 10.5), (1.8, 10.5), (1.8, 3.6), (17.0, 3.6), (8.0, 3.6)]
+_OFFICE_ROUTE = [(1.6, 7.0), (18.2, 7.0), (18.2, 10.4), (1.8, 10.4), (1.8, 3.6), (17.0, 3.6), (8.0, 3.6)]
 
 
 def office() -> Scenario:
@@ -257,18 +258,19 @@ def office() -> Scenario:
 def office_b() -> Scenario:
     base = office().world
     objs = {o.name: o for o in base.objects}
-    moved = {
-        "dining_table_11": objs["dining_table_11"].moved(0.0, 0.0, math.pi / 2),  # desk turned
-        "chair_12": objs["chair_12"].moved(-0.6, -0.3),
-        "couch_39": objs["couch_39"].moved(-2.2, 0.0),
-        "potted_plant_41": objs["potted_plant_41"].moved(0.0, -1.5),
+    moved = {name: objs[name].moved(1.6, -0.3) for name in ("dining_table_24", "chair_25", "chair_26", "tv_27")}
+    moved |= {
+        "chair_13": objs["chair_13"].moved(-0.6, -0.3),
+        "couch_40": objs["couch_40"].moved(-2.2, 0.0),
+        "potted_plant_43": objs["potted_plant_43"].moved(0.0, -1.5),
     }
-    removed = {"chair_17", "chair_18"}
+    removed = {"chair_21", "chair_22"}
     new_objs = [moved.get(o.name, o) for o in base.objects if o.name not in removed]
-    new_objs.append(cabinet(900, (12.5, 13.7, 0.0), w=1.6, d=0.45))
-    route = [(17.0, 3.6), (17.2, 3.6), (18.2, 3.6), (18.2, 7.0), (1.6, 7.0), (1.8, 10.5), (17.5, 10.5)]
+    new_objs.append(cabinet(900, (9.25, 13.7, 0.0), w=1.2, d=0.45))
+    route = [(18.2, 5.5), (18.2, 10.4), (1.8, 10.4), (1.8, 3.6), (16.5, 3.6), (16.5, 7.0), (4.5, 7.0)]
     world = World("office_b", tuple(new_objs), _office_people(1), np.asarray(route, float), start_yaw=math.pi / 2,
-                  description="The office later: a desk turned, chairs moved or gone, the couch and a plant "
+                  description="The office later: a desk moved with its chairs and monitor, chairs moved or gone, "
+                              "the couch and a plant "
                               "moved, a new cabinet, other people; the tour starts in the south-east.")
     return Scenario(world, base=base)
 
@@ -287,7 +289,7 @@ def occlusion() -> Scenario:
         chair(ids(), (7.4, 0.35, 0.0)),
         table(ids(), (9.0, 2.6, 0.0), 1.2, 0.7),
         chair(ids(), (9.0, 2.05, 0.0)),
-        potted_plant(ids(), 6.6, 3.45),
+        potted_plant(ids(), 11.5, 3.5),
     ]
     people = (
         _person(501, 0, [(2.2, 2.2)]),
@@ -315,8 +317,8 @@ SCENARIOS: dict[str, Callable[[], Scenario]] = {
 
 
 def get_scenario(name: str) -> Scenario:
-    try:
-        return SCENARIOS[name]()
-    except KeyError:
+    factory = SCENARIOS.get(name)
+    if factory is None:
         known = ", ".join(SCENARIOS)
-        raise ConfigError(f"unknown scenario {name!r} (built in: {known}; or give a world .yaml file)") from None
+        raise ConfigError(f"unknown scenario {name!r} (built in: {known}; or give a world .yaml file)")
+    return factory()

@@ -38,7 +38,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 
 from ..classes import load_class_table
 from ..config import SimConfig, load_model, load_yaml, merge_overrides
@@ -48,10 +47,11 @@ from ..io.bag import BAG_FORMATS, BagFormat, BagWriter
 from ..io.calibration import write_calibration
 from ..io.mapserver import write_map
 from ..io.tum import write_tum
+from ..io.yamlio import write_yaml
 from ..records import Calibration, CameraIntrinsics, Image, Mobility, Scan
 from .groundtruth import change_mask, grid_for_world, occupancy_layers, people_swept
 from .raycast import PartSet
-from .robot import check_clearance, plan_tour, simulate_odometry
+from .robot import check_clearance, people_clearance, plan_tour, simulate_odometry
 from .scenarios import Scenario, get_scenario
 from .sensors import CameraSim, LidarSim
 from .world import World, load_world, world_to_dict
@@ -143,6 +143,9 @@ def simulate(
         raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the result should not be
     try:
         result = _simulate_into(sc, cfg, tmp, fmt, seed, progress)
         if out.exists():
@@ -172,6 +175,10 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     traj = plan_tour(world, cfg.robot)
     clearance = check_clearance(world, traj, cfg.robot)
     log.info("tour %s: %.1f s, %.1f m, clearance %.2f m", world.name, traj.duration, traj.length(), clearance)
+    people_gap, people_t, who = people_clearance(world, traj, cfg.robot)
+    if people_gap < 0.05:
+        log.warning("world %s: %s comes within %.2f m of the robot at t = %.1f s (people do not yield)",
+                    world.name, who, people_gap, people_t)
 
     rng = np.random.default_rng(seed)
     rng_odom, rng_lidar, rng_cam, rng_cam_noise = rng.spawn(4)
@@ -299,9 +306,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                 bag.image(c.camera.label_topic, t_bag, lab)
                 bag.camera_info(c.camera.info_topic, t_bag, stamp, c.camera.frame_id, intr)
                 topics = [image_topic, c.camera.label_topic, c.camera.info_topic]
-                mob = row_mobility[np.maximum(frame.owner, 0)] * (frame.owner >= 0)
-                score = float(np.count_nonzero(mob == Mobility.DYNAMIC)) + 0.3 * np.count_nonzero(
-                    mob == Mobility.SEMI_STATIC)
+                score = _preview_score(frame.label)
                 if score > best["score"]:
                     best = {"score": score, "t": t, "stamp": stamp, "rgb": frame.rgb.copy(),
                             "label": frame.label.copy()}
@@ -313,9 +318,8 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     # ---- ground truth -----------------------------------------------------------------------
     gt = out / "ground_truth"
     gt.mkdir()
-    (gt / "world.yaml").write_text(
-        "# semmap world: reload with `semmap simulate --scenario world.yaml`\n"
-        + yaml.safe_dump(world_to_dict(world), sort_keys=False), encoding="utf-8")
+    write_yaml(gt / "world.yaml", world_to_dict(world),
+               "# semmap world: reload with `semmap simulate --scenario world.yaml`\n")
     spec = grid_for_world(world, cfg.ground_truth.map_resolution, cfg.ground_truth.map_margin)
     layers = occupancy_layers(world, spec, lidar.height)
     for name, occ in layers.items():
@@ -343,18 +347,16 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
             raise SemmapError(f"world {world.name}: its grid differs from its base world's")
         mask = change_mask(base_layers["occupancy"], layers["occupancy"])
         cv2.imwrite(str(gt / "changes.png"), np.flipud(mask))
-        (gt / "changes.yaml").write_text(yaml.safe_dump({
+        write_yaml(gt / "changes.yaml", {
             "image": "changes.png", "resolution": spec.resolution, "origin": [spec.origin_x, spec.origin_y, 0.0],
-            "values": {"0": "no change", "1": "added", "2": "removed"}, "base_world": sc.base.name,
-        }, sort_keys=False), encoding="utf-8")
+            "values": {0: "no change", 1: "added", 2: "removed"}, "base_world": sc.base.name,
+        })
         changes = _change_list(sc.base, world)
         (gt / "changes.json").write_text(json.dumps(changes, indent=2), encoding="utf-8")
 
     calib_extra = {"source": f"semmap simulate (scenario {world.name}); exact by construction"}
     write_calibration(out / "calibration.yaml", calib, calib_extra)
-    (out / "config.yaml").write_text("# effective simulator configuration\n"
-                                     + yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False),
-                                     encoding="utf-8")
+    write_yaml(out / "config.yaml", cfg.model_dump(mode="json"), "# effective simulator configuration\n")
     manifest = {
         "semmap_tour": 1,
         "scenario": world.name,
@@ -383,6 +385,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
         "odometry_error": {"scale": round(float(odom.scale_error), 5), "yaw_scale": round(float(odom.yaw_scale_error), 5),
                            "yaw_drift_deg_per_m": round(math.degrees(float(odom.yaw_drift_rad_per_m)), 4)},
         "min_clearance_m": round(clearance, 3),
+        "min_people_clearance_m": round(people_gap, 3) if math.isfinite(people_gap) else None,
         "ground_truth": {
             "world": "ground_truth/world.yaml",
             "occupancy": "ground_truth/occupancy.yaml",
@@ -397,7 +400,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
         },
         "calibration": "calibration.yaml",
     }
-    (out / "tour.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False), encoding="utf-8")
+    write_yaml(out / "tour.yaml", manifest)
 
     from .preview import camera_preview, world_preview  # matplotlib is slow to import
 
@@ -410,6 +413,14 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                        lidar.angles, gt_range[k], gt_row[k], row_mobility,
                        title=f"{world.name}: camera at t = {best['t']:.1f} s")
     return SimulationResult(out, bag_path, fmt, world.name, seed, duration, counts)
+
+
+def _preview_score(label: np.ndarray) -> float:
+    """Prefer frames showing many classes, none of them filling the view (people score double)."""
+    values, counts = np.unique(label, return_counts=True)
+    if counts[values > 0].max(initial=0) > 0.25 * label.size:
+        return 0.0
+    return float(sum(min(int(n), 8000) * (2 if v == 1 else 1) for v, n in zip(values, counts) if v > 0))
 
 
 def _change_list(before: World, after: World) -> list[dict[str, Any]]:

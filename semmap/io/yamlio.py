@@ -1,0 +1,39 @@
+"""YAML out: readable, safe, and short lists of numbers on one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["dump_yaml", "write_yaml"]
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    # numbers on one line; lists of 2D points on one line; matrices one row per line
+    flat = all(isinstance(v, (int, float, bool)) or v is None for v in data)
+    points = all(isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v) for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=bool(data) and (flat or points))
+
+
+def _represent_float(dumper: yaml.SafeDumper, data: float) -> yaml.Node:
+    return yaml.SafeDumper.represent_float(dumper, data + 0.0)  # no "-0.0"
+
+
+_Dumper.add_representer(list, _represent_list)
+_Dumper.add_representer(float, _represent_float)
+
+
+def dump_yaml(data: Any) -> str:
+    return yaml.dump(data, Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=110)
+
+
+def write_yaml(path: str | Path, data: Any, header: str = "") -> Path:
+    p = Path(path)
+    p.write_text(header + dump_yaml(data), encoding="utf-8")
+    return p

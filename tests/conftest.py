@@ -1,0 +1,39 @@
+"""Shared fixtures: short simulated tours in every bag format, and the real data folder."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data() -> Path:
+    return Path(os.environ.get("SEMMAP_DATA", REPO.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    d = shared_data()
+    if not d.is_dir():
+        pytest.skip(f"real data not found at {d} (set SEMMAP_DATA to ../shared/data)")
+    return d
+
+
+@pytest.fixture(scope="session")
+def short_demo_world():
+    from semmap.sim.scenarios import demo
+
+    return replace(demo().world, duration_s=8.0)
+
+
+@pytest.fixture(scope="session", params=["ros1", "mcap", "sqlite3"])
+def short_tour(request, tmp_path_factory, short_demo_world):
+    """An 8 s demo tour in each bag format."""
+    from semmap.sim.tour import simulate
+
+    out = tmp_path_factory.mktemp(f"tour_{request.param}") / "demo"
+    return simulate(short_demo_world, out, fmt=request.param, seed=3)

@@ -37,6 +37,7 @@ _LAZY = {
 __all__ = ["__version__", *_LAZY]
 
 if TYPE_CHECKING:  # pragma: no cover
+    # ruff: noqa: F401
     from .config import SimConfig
     from .errors import SemmapError
     from .io.bag import BagInfo, bag_info

@@ -7,8 +7,6 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import yaml
-
 from .errors import ConfigError
 from .records import Mobility
 
@@ -95,12 +93,6 @@ def load_class_table(path: str | Path | None = None) -> ClassTable:
 
 @lru_cache(maxsize=8)
 def _load_cached(path: str) -> ClassTable:
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read class table ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: malformed YAML ({exc})") from None
-    return _parse(data, path)
+    from .io.yamlio import read_yaml
+
+    return _parse(read_yaml(path, "class table"), path)

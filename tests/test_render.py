@@ -1,6 +1,5 @@
 """The simulated camera: label images line up with the RGB image and with the LiDAR."""
 
-import math
 
 import numpy as np
 import pytest

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from semmap.errors import ConfigError
 from semmap.geometry import se2_between, se2_compose
 from semmap.records import GridSpec, Mobility
 from semmap.sim.groundtruth import occupancy_layers, rasterise
@@ -12,7 +13,6 @@ from semmap.sim.robot import check_clearance, people_clearance, plan_tour, simul
 from semmap.sim.scenarios import SCENARIOS, get_scenario
 from semmap.sim.tour import effective_config
 from semmap.sim.world import load_world, world_from_dict, world_to_dict
-from semmap.errors import ConfigError
 
 
 @pytest.mark.parametrize("name", list(SCENARIOS))

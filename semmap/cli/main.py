@@ -57,6 +57,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"semmap {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # unwritable output, full disk...: the message names the path
+        if args.debug:
+            raise
+        print(f"semmap {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"semmap {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -21,11 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from ..errors import ConfigError
 from ..records import Calibration, CameraIntrinsics
-from .yamlio import write_yaml
+from .yamlio import read_yaml, write_yaml
 
 __all__ = ["write_calibration", "read_calibration", "calibration_to_dict", "calibration_from_dict"]
 
@@ -95,11 +94,5 @@ def calibration_from_dict(data: Any, source: str) -> Calibration:
 
 
 def read_calibration(path: str | Path) -> Calibration:
-    p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read calibration ({exc.strerror})") from None
-    except yaml.YAMLError:
-        raise ConfigError(f"{p}: malformed YAML") from None
-    return calibration_from_dict(data, str(p))
+    """Read a calibration file; every error names the file and the field."""
+    return calibration_from_dict(read_yaml(path, "calibration"), str(path))

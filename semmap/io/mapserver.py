@@ -12,12 +12,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..records import GridSpec
-from .yamlio import write_yaml
+from .yamlio import read_yaml, write_yaml
 
 __all__ = ["OCCUPIED", "FREE", "UNKNOWN", "write_map", "read_map", "MapImage"]
 
@@ -78,12 +77,7 @@ class MapImage:
 def read_map(yaml_path: str | Path) -> MapImage:
     """Read a map_server YAML + image the way map_server does (trinary/scale, negate, thresholds)."""
     p = Path(yaml_path)
-    try:
-        meta = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read map YAML ({exc.strerror})") from None
-    except yaml.YAMLError:
-        raise ConfigError(f"{p}: malformed YAML") from None
+    meta = read_yaml(p, "map")
     try:
         image = p.parent / str(meta["image"])
         res = float(meta["resolution"])

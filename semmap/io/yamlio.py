@@ -7,7 +7,24 @@ from typing import Any
 
 import yaml
 
-__all__ = ["dump_yaml", "write_yaml"]
+from ..errors import ConfigError
+
+__all__ = ["dump_yaml", "write_yaml", "read_yaml"]
+
+
+def read_yaml(path: str | Path, what: str = "file") -> Any:
+    """Read YAML with ``yaml.safe_load``; errors name the file (and the line, if YAML is malformed)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read {what} ({exc.strerror})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}:" if mark is not None else ""
+        raise ConfigError(f"{p}:{where} malformed YAML in {what}") from None
 
 
 class _Dumper(yaml.SafeDumper):

@@ -42,7 +42,7 @@ import numpy as np
 from ..classes import load_class_table
 from ..config import SimConfig, load_model, load_yaml, merge_overrides
 from ..errors import ConfigError, OutputExistsError, SemmapError
-from ..geometry import se3_from_xyz_rpy, se3_inverse, se2_to_se3
+from ..geometry import se2_to_se3, se3_from_xyz_rpy, se3_inverse
 from ..io.bag import BAG_FORMATS, BagFormat, BagWriter
 from ..io.calibration import write_calibration
 from ..io.mapserver import write_map

@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
+from ..io.yamlio import read_yaml
 from ..records import Mobility
 
 __all__ = [
@@ -543,11 +543,4 @@ def world_from_dict(data: Any, source: str = "<world>") -> World:
 
 def load_world(path: str | Path) -> World:
     """Read a ``world.yaml`` (safe YAML only)."""
-    p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read world file ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: malformed YAML ({exc})") from None
-    return world_from_dict(data, str(p))
+    return world_from_dict(read_yaml(path, "world"), str(path))

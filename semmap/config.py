@@ -16,6 +16,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .errors import ConfigError
 
 __all__ = [
+    "RegistrationConfig",
+    "EkfConfig",
+    "GridConfig",
+    "CleaningConfig",
     "Mount",
     "SimRobotConfig",
     "SimLidarConfig",
@@ -156,6 +160,63 @@ class SimConfig(_Model):
     tf_topic: str = "/tf"
     tf_static_topic: str = "/tf_static"
     start_time_ns: int = Field(1_767_225_600_000_000_000, description="2026-01-01T00:00:00Z")
+
+
+# ---------------------------------------------------------------------------------------
+# Mapping stages (semmap build)
+
+
+class EkfConfig(_Model):
+    """SE(2) EKF fusing wheel odometry (prediction) with KISS-ICP poses (measurement)."""
+
+    odom_trans_noise: float = Field(0.02, ge=0, description="std of translation per metre driven (fraction)")
+    odom_rot_noise: float = Field(0.02, ge=0, description="std of rotation per radian turned (fraction)")
+    odom_rot_per_m: float = Field(0.005, ge=0, description="std of heading change per metre driven, rad/m")
+    odom_min_noise: float = Field(1e-4, ge=0, description="floor on per-step noise std (m and rad)")
+    icp_xy_std: float = Field(0.02, gt=0, description="ICP position measurement std, m")
+    icp_yaw_std: float = Field(0.005, gt=0, description="ICP heading measurement std, rad")
+    gate_chi2: float = Field(16.27, gt=0, description="reject ICP poses beyond this Mahalanobis² (3 dof, 99.9 %)")
+
+
+class RegistrationConfig(_Model):
+    """Scan registration: KISS-ICP scan-to-map odometry, optionally fused with wheel odometry."""
+
+    mode: Literal["fused", "icp", "odometry"] = Field(
+        "fused", description="fused: EKF of wheel odometry + KISS-ICP; icp: KISS-ICP alone; "
+                             "odometry: wheel odometry alone")
+    voxel_size: float = Field(0.15, gt=0, description="KISS-ICP voxel size, m (0.1-0.5 indoors)")
+    max_range: float = Field(20.0, gt=0, description="points beyond this range are not registered, m")
+    min_range: float = Field(0.1, ge=0, description="points closer than this are not registered, m")
+    max_points_per_voxel: int = Field(20, gt=0)
+    initial_threshold: float = Field(0.5, gt=0, description="KISS-ICP adaptive threshold start, m")
+    min_motion: float = Field(0.05, ge=0, description="KISS-ICP adaptive threshold min motion, m")
+    exclude_dynamic: bool = Field(True, description="points painted dynamic are not matched or mapped")
+    ekf: EkfConfig = EkfConfig()
+
+
+class GridConfig(_Model):
+    """The fused grid: log-odds occupancy plus class evidence per cell."""
+
+    resolution: float = Field(0.05, gt=0, description="m per cell")
+    l_occ: float = Field(0.85, gt=0, description="log-odds added at a hit")
+    l_free: float = Field(0.4, gt=0, description="log-odds removed along a ray")
+    l_min: float = Field(-2.0, description="log-odds clamp, low")
+    l_max: float = Field(3.5, description="log-odds clamp, high")
+    max_free_range: float = Field(10.0, gt=0, description="beams without a return clear free space to here, m")
+    tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
+
+
+class CleaningConfig(_Model):
+    """Turning the fused grid into the cleaned map."""
+
+    occupied_logodds: float = Field(0.6, description="cells above this log-odds are occupied")
+    free_logodds: float = Field(-0.4, description="cells below this log-odds are free")
+    dynamic_fraction: float = Field(0.3, ge=0, le=1, description="drop a cell when this share of its labelled "
+                                                                  "hits was dynamic")
+    semi_static_fraction: float = Field(0.5, ge=0, le=1, description="flag a cell semi-static when this share "
+                                                                       "of its labelled hits was semi-static")
+    min_labelled_hits: int = Field(2, ge=1, description="camera-labelled hits a cell needs before its class counts")
+    object_link_distance: float = Field(0.35, gt=0, description="cells of one object are at most this far apart, m")
 
 
 # ---------------------------------------------------------------------------------------

@@ -23,6 +23,8 @@ __all__ = [
     "Scan",
     "Image",
     "GridSpec",
+    "Segmentation",
+    "PaintedScan",
 ]
 
 
@@ -249,3 +251,76 @@ class GridSpec:
     def as_dict(self) -> dict[str, float | int]:
         return {"resolution": self.resolution, "origin_x": self.origin_x, "origin_y": self.origin_y,
                 "width": self.width, "height": self.height}
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """A segmentation result for one camera image (see README, "Label images").
+
+    ``label`` is ``uint16`` (H, W): value k > 0 is ``names[k-1]``, 0 is no object.
+    ``confidence`` is ``float32`` (H, W) in [0, 1] where the backend has one.
+    """
+
+    stamp_ns: int
+    label: NDArray[np.uint16]
+    names: tuple[str, ...]
+    confidence: NDArray[np.float32] | None = None
+
+    def __post_init__(self) -> None:
+        lab = np.asarray(self.label)
+        if lab.ndim != 2:
+            raise ValueError(f"a label image must be 2-D, got shape {lab.shape}")
+        if lab.dtype != np.uint16:
+            lab = lab.astype(np.uint16)
+        lab.setflags(write=False)
+        object.__setattr__(self, "label", lab)
+        object.__setattr__(self, "names", tuple(self.names))
+        if self.confidence is not None:
+            c = np.asarray(self.confidence, dtype=np.float32)
+            if c.shape != lab.shape:
+                raise ValueError(f"confidence shape {c.shape} differs from label shape {lab.shape}")
+            c.setflags(write=False)
+            object.__setattr__(self, "confidence", c)
+
+
+@dataclass(frozen=True)
+class PaintedScan:
+    """One LiDAR scan, motion-compensated into the base frame and painted with classes.
+
+    All beams are kept, in scan order, so rays can clear free space:
+
+    * ``origin`` (2,): the LiDAR's position in the base frame (m) at ``stamp_ns``.
+    * ``points`` (N, 2): beam end points in the base frame (m), deskewed to ``stamp_ns``.
+      Beams without a return (``hit`` false) end at the free-space range instead.
+    * ``hit`` (N,): the beam returned a valid range (finite, within range limits).
+    * ``mobility`` (N,): :class:`Mobility` values; 0 where the camera did not see the point.
+    * ``class_id`` (N,): index into ``class_names``, -1 for no object / unseen.
+    * ``stamp_ns``: the time the points are expressed at (the scan's reference time).
+    """
+
+    stamp_ns: int
+    origin: NDArray[np.float64]
+    points: NDArray[np.float64]
+    hit: NDArray[np.bool_]
+    mobility: NDArray[np.uint8]
+    class_id: NDArray[np.int16]
+    class_names: tuple[str, ...] = ()
+    frame_id: str = ""
+
+    def __post_init__(self) -> None:
+        pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2)
+        n = pts.shape[0]
+        hit = np.asarray(self.hit, dtype=bool).reshape(-1)
+        mob = np.asarray(self.mobility, dtype=np.uint8).reshape(-1)
+        cls = np.asarray(self.class_id, dtype=np.int16).reshape(-1)
+        if not (hit.size == mob.size == cls.size == n):
+            raise ValueError("points, hit, mobility and class_id must have one entry per beam")
+        for name, arr in (("origin", np.asarray(self.origin, dtype=np.float64).reshape(2)), ("points", pts),
+                          ("hit", hit), ("mobility", mob), ("class_id", cls)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "class_names", tuple(self.class_names))
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.points.shape[0])

@@ -1,0 +1,1 @@
+"""Calibration: camera intrinsics, LiDAR-camera extrinsics and checks."""

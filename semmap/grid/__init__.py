@@ -1,0 +1,1 @@
+"""Fusion: a log-odds occupancy grid with class evidence per cell, and its cleaning."""

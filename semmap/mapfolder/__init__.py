@@ -1,0 +1,1 @@
+"""The map folder: writing and reading what semmap build produces."""

@@ -1,0 +1,1 @@
+"""Painting: project scans into the camera, look up labels, map classes to mobility."""

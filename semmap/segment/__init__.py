@@ -1,0 +1,1 @@
+"""Segmentation: the Segmenter protocol, its registry and one module per backend."""

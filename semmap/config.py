@@ -16,6 +16,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .errors import ConfigError
 
 __all__ = [
+    "TopicsConfig",
+    "FramesConfig",
+    "SyncConfig",
+    "SegmentationConfig",
+    "PaintConfig",
+    "BuildConfig",
     "RegistrationConfig",
     "EkfConfig",
     "GridConfig",
@@ -166,16 +172,66 @@ class SimConfig(_Model):
 # Mapping stages (semmap build)
 
 
+class TopicsConfig(_Model):
+    """Topic names. ``null`` means: detect it from the bag when the choice is unambiguous."""
+
+    scan: str | None = None
+    image: str | None = Field(None, description="RGB camera: sensor_msgs/Image or CompressedImage")
+    labels: str | None = Field(None, description="label images (mono8/mono16) for the 'topic' backend")
+    camera_info: str | None = None
+    odometry: str | None = Field(None, description="nav_msgs/Odometry; 'none' to build without odometry")
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+
+
+class FramesConfig(_Model):
+    """Frame names; ``null`` means: take them from the data."""
+
+    base: str | None = Field(None, description="robot base frame (default: the odometry child frame)")
+    lidar: str | None = Field(None, description="LiDAR frame (default: the scans' frame_id)")
+    base_T_lidar: Mount | None = Field(None, description="T_base_lidar when the bag has no /tf_static for it")
+
+
+class SyncConfig(_Model):
+    """Pairing scans with images and odometry."""
+
+    max_image_offset: float = Field(0.1, ge=0, description="pair a scan with the nearest image within this, s")
+    motion_compensation: bool = Field(True, description="move the scan to the image time through odometry")
+    deskew: bool = Field(True, description="undo the robot's motion during a scan sweep through odometry")
+    max_odom_gap: float = Field(0.5, gt=0, description="odometry gaps longer than this are not interpolated, s")
+
+
+class SegmentationConfig(_Model):
+    """Where labels come from."""
+
+    backend: str = Field("topic", description="'topic': label images recorded in the bag")
+    class_list: str = Field("coco", description="class list (config/classes.yaml) naming label values")
+    classes_file: Path | None = Field(None, description="a class table replacing config/classes.yaml")
+
+
+class PaintConfig(_Model):
+    """Projecting scans into the camera."""
+
+    min_depth: float = Field(0.1, gt=0, description="points closer to the camera than this are not painted, m")
+
+
 class EkfConfig(_Model):
     """SE(2) EKF fusing wheel odometry (prediction) with KISS-ICP poses (measurement)."""
 
     odom_trans_noise: float = Field(0.02, ge=0, description="std of translation per metre driven (fraction)")
     odom_rot_noise: float = Field(0.02, ge=0, description="std of rotation per radian turned (fraction)")
     odom_rot_per_m: float = Field(0.005, ge=0, description="std of heading change per metre driven, rad/m")
+    # The random-walk terms are deliberately larger than a wheel encoder's white noise: they also
+    # stand for odometry bias the filter does not model. Smaller values let the bias leak into the
+    # fused pose (and from there into KISS-ICP's local map); see tools/bench_registration.py.
+    odom_trans_rw: float = Field(0.01, ge=0, description="translation random walk, m per sqrt(m driven)")
+    odom_rot_rw: float = Field(0.01, ge=0, description="heading random walk, rad per sqrt(m driven + rad turned)")
     odom_min_noise: float = Field(1e-4, ge=0, description="floor on per-step noise std (m and rad)")
-    icp_xy_std: float = Field(0.02, gt=0, description="ICP position measurement std, m")
-    icp_yaw_std: float = Field(0.005, gt=0, description="ICP heading measurement std, rad")
+    icp_xy_std: float = Field(0.005, gt=0, description="ICP position measurement std, m")
+    icp_yaw_std: float = Field(0.001, gt=0, description="ICP heading measurement std, rad")
     gate_chi2: float = Field(16.27, gt=0, description="reject ICP poses beyond this Mahalanobis² (3 dof, 99.9 %)")
+    reset_after: int = Field(5, ge=0, description="after this many ICP results gated out in a row, trust ICP: "
+                                                  "the filter restarts from its pose (odometry slipped); 0: never")
 
 
 class RegistrationConfig(_Model):
@@ -190,6 +246,11 @@ class RegistrationConfig(_Model):
     max_points_per_voxel: int = Field(20, gt=0)
     initial_threshold: float = Field(0.5, gt=0, description="KISS-ICP adaptive threshold start, m")
     min_motion: float = Field(0.05, ge=0, description="KISS-ICP adaptive threshold min motion, m")
+    max_iterations: int = Field(500, gt=0, description="KISS-ICP iteration limit per scan")
+    convergence: float = Field(1e-4, gt=0, description="KISS-ICP stops when an update is below this")
+    max_threads: int = Field(1, ge=0, description="KISS-ICP threads (0: all cores; 2D scans are fastest on one)")
+    min_points: int = Field(20, ge=3, description="fewer down-sampled points than this: ICP is not run "
+                                                  "and the step counts as failed")
     exclude_dynamic: bool = Field(True, description="points painted dynamic are not matched or mapped")
     ekf: EkfConfig = EkfConfig()
 
@@ -202,21 +263,58 @@ class GridConfig(_Model):
     l_free: float = Field(0.4, gt=0, description="log-odds removed along a ray")
     l_min: float = Field(-2.0, description="log-odds clamp, low")
     l_max: float = Field(3.5, description="log-odds clamp, high")
-    max_free_range: float = Field(10.0, gt=0, description="beams without a return clear free space to here, m")
+    max_free_range: float = Field(10.0, gt=0, description="free space is cleared at most this far from the sensor "
+                                                          "(beams without a return: to here), m")
     tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
+    hit_free_margin: float = Field(0.05, ge=0, description="returns clear free space only to this far short "
+                                                            "of their end point, m (keeps grazing rays from "
+                                                            "eroding surfaces)")
+    free_erode: bool = Field(True, description="erode each scan's free space by one cell, so rays grazing a "
+                                               "surface do not clear it")
+    dropout_guard: int = Field(2, ge=0, description="a beam without a return whose neighbours within this "
+                                                    "many beams on both sides returned is a dropout: it "
+                                                    "clears no further than they do (0: off)")
 
 
 class CleaningConfig(_Model):
     """Turning the fused grid into the cleaned map."""
 
     occupied_logodds: float = Field(0.6, description="cells above this log-odds are occupied")
-    free_logodds: float = Field(-0.4, description="cells below this log-odds are free")
+    free_logodds: float = Field(-0.2, description="cells below this log-odds are free (one free pass: -l_free)")
+    hit_ratio: float = Field(0.25, ge=0, le=1, description="also occupied: cells returning at least this share "
+                                                           "of the scans that observed them (thin legs; 0: off)")
+    min_hits: int = Field(5, ge=1, description="scans that must have returned from a cell for hit_ratio to apply")
     dynamic_fraction: float = Field(0.3, ge=0, le=1, description="drop a cell when this share of its labelled "
                                                                   "hits was dynamic")
     semi_static_fraction: float = Field(0.5, ge=0, le=1, description="flag a cell semi-static when this share "
                                                                        "of its labelled hits was semi-static")
     min_labelled_hits: int = Field(2, ge=1, description="camera-labelled hits a cell needs before its class counts")
-    object_link_distance: float = Field(0.35, gt=0, description="cells of one object are at most this far apart, m")
+    object_link_distance: float = Field(0.45, gt=0, description="cells of one object are at most this far apart, m "
+                                                                 "(a person's legs ~0.2 m, a chair's ~0.4 m)")
+    wall_min_length: float = Field(0.4, gt=0, description="straight runs of occupied cells this long are walls, "
+                                                          "judged as a whole segment, m")
+    structure_min_size: float = Field(1.0, gt=0, description="touching occupied cells longer than this are "
+                                                             "structure: their unlabelled cells stay static, m")
+    leg_max_size: float = Field(0.2, ge=0, description="an isolated blob no longer than this with no camera "
+                                                       "label is a furniture leg, flagged semi-static, m "
+                                                       "(0: off)")
+    label_spread_distance: float = Field(0.6, ge=0, description="unlabelled cells take their object's verdict "
+                                                                "only this close to a cell labelled so, m")
+
+
+class BuildConfig(_Model):
+    """Everything ``semmap build`` needs besides the tour and the calibration."""
+
+    topics: TopicsConfig = TopicsConfig()
+    frames: FramesConfig = FramesConfig()
+    calibration: Path | None = Field(None, description="calibration file; relative paths are relative to the "
+                                                         "config file (default: calibration.yaml beside the bag)")
+    sync: SyncConfig = SyncConfig()
+    segmentation: SegmentationConfig = SegmentationConfig()
+    paint: PaintConfig = PaintConfig()
+    registration: RegistrationConfig = RegistrationConfig()
+    grid: GridConfig = GridConfig()
+    cleaning: CleaningConfig = CleaningConfig()
 
 
 # ---------------------------------------------------------------------------------------

@@ -252,6 +252,11 @@ class GridSpec:
         return {"resolution": self.resolution, "origin_x": self.origin_x, "origin_y": self.origin_y,
                 "width": self.width, "height": self.height}
 
+    def crop(self, row0: int, row1: int, col0: int, col1: int) -> GridSpec:
+        """The sub-grid of rows ``row0:row1`` and columns ``col0:col1``."""
+        return GridSpec(self.resolution, self.origin_x + col0 * self.resolution,
+                        self.origin_y + row0 * self.resolution, col1 - col0, row1 - row0)
+
 
 @dataclass(frozen=True)
 class Segmentation:

@@ -1,0 +1,362 @@
+"""Fusing painted scans into a log-odds occupancy grid with class evidence per cell.
+
+:class:`SemanticGrid` keeps, per cell of a window that grows with the area observed:
+
+* ``log_odds`` (float32): occupancy evidence, clamped to ``[l_min, l_max]``.
+* ``hits`` / ``free`` (uint16, saturating): how many scans ended a return in the cell / crossed it.
+* ``mobility`` (uint16, 4 layers): how many scans ended a return in the cell painted with
+  each :class:`~semmap.records.Mobility` value (0 unknown, 1 static, 2 semi-static,
+  3 dynamic): Dirichlet-style counts, saturating at 65535.
+* ``class_counts`` (uint16, one layer per class *seen*): the same per object class, so memory
+  does not grow with the length of the class list (80 COCO classes).
+
+Every count is at most one per scan and cell, however many beams of the scan land there;
+close walls would otherwise outvote far ones.
+
+Free space is rasterised, not ray-cast (OpenCV is ~25x faster than Python Bresenham): each
+scan's polygon (the LiDAR origin followed by the beam end points in scan order) is filled with
+:func:`cv2.fillPoly` into a scratch mask over the scan's bounding box, then
+
+* returns are pulled back towards the sensor by ``hit_free_margin`` and the mask is eroded by
+  one cell (``free_erode``), so rays grazing a wall or pillar face do not clear it;
+* a beam without a return between returning neighbours (``dropout_guard``) clears no further
+  than they do, so a dropout does not punch a ray through a wall;
+* the cells a return of the same scan ended in are removed from the mask, so a ray never
+  clears its own end cell.
+
+The log-odds window of the bounding box is then updated with two OpenCV passes; hits, mobility
+and class counts with one sort of the scan's (cell, code) keys. A 541-beam indoor scan costs
+~0.3-0.5 ms on one core.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import GridConfig
+from ..records import GridSpec, Mobility, PaintedScan
+
+__all__ = ["N_MOBILITY", "GridLayers", "SemanticGrid"]
+
+log = logging.getLogger(__name__)
+
+#: Number of mobility values (layers of :attr:`GridLayers.mobility`).
+N_MOBILITY = len(Mobility)
+
+_SHIFT = 4  # fractional bits of the polygon vertices handed to cv2.fillPoly
+_U16_MAX = np.iinfo(np.uint16).max
+_KERNEL3 = np.ones((3, 3), np.uint8)
+
+
+def _frozen(a: NDArray[np.generic]) -> NDArray[np.generic]:
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class GridLayers:
+    """A snapshot of a :class:`SemanticGrid`: everything cleaning and the map folder need.
+
+    All arrays are read-only copies in grid order (row 0 = lowest y, see :class:`GridSpec`):
+
+    * ``log_odds`` (H, W) float32: occupancy log-odds, 0 = never observed.
+    * ``hits`` (H, W) uint16: scans with a return ending in the cell.
+    * ``free`` (H, W) uint16: scans whose free-space polygon covered the cell.
+    * ``mobility`` (4, H, W) uint16: hits per :class:`Mobility` value (index = value).
+    * ``class_counts`` (K, H, W) uint16: hits per class, for the K classes seen.
+    * ``class_ids`` (K,): index into ``class_names`` of each layer of ``class_counts``.
+    * ``class_names``: the grid's class list, which ``PaintedScan.class_id`` indexes.
+    * ``n_scans``: scans integrated.
+    """
+
+    spec: GridSpec
+    log_odds: NDArray[np.float32]
+    hits: NDArray[np.uint16]
+    free: NDArray[np.uint16]
+    mobility: NDArray[np.uint16]
+    class_counts: NDArray[np.uint16]
+    class_ids: tuple[int, ...]
+    class_names: tuple[str, ...]
+    n_scans: int = 0
+
+    def __post_init__(self) -> None:
+        shape = self.spec.shape
+        if self.log_odds.shape != shape or self.hits.shape != shape or self.free.shape != shape:
+            raise ValueError(f"layers must have the grid's shape {shape}")
+        if self.mobility.shape != (N_MOBILITY, *shape):
+            raise ValueError(f"mobility must have shape {(N_MOBILITY, *shape)}, got {self.mobility.shape}")
+        if self.class_counts.shape != (len(self.class_ids), *shape):
+            raise ValueError("class_counts must have one layer per entry of class_ids")
+        if any(not 0 <= c < len(self.class_names) for c in self.class_ids):
+            raise ValueError("class_ids must index class_names")
+
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        """Cells some scan hit or crossed."""
+        return (self.hits > 0) | (self.free > 0)
+
+    @property
+    def labelled(self) -> NDArray[np.uint32]:
+        """Hits the camera labelled (static + semi-static + dynamic), per cell."""
+        return self.mobility[1:].sum(axis=0, dtype=np.uint32)
+
+    def class_layer(self, name: str) -> NDArray[np.uint16]:
+        """Hits per cell of one class by name (zeros when the class was never seen)."""
+        try:
+            k = self.class_names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown class {name!r}") from None
+        if k in self.class_ids:
+            return self.class_counts[self.class_ids.index(k)]
+        return np.zeros(self.spec.shape, np.uint16)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.log_odds.nbytes + self.hits.nbytes + self.free.nbytes + self.mobility.nbytes
+                   + self.class_counts.nbytes)
+
+
+class SemanticGrid:
+    """A log-odds occupancy grid with mobility and class evidence, grown as scans arrive.
+
+    ``class_names`` is the list that ``PaintedScan.class_id`` indexes. The grid starts
+    empty; the first scan allocates a window around itself plus ``cfg.tile_margin``, and any
+    scan leaving the window enlarges it by ``tile_margin`` on the sides it left, so memory
+    follows the area observed (a long corridor costs a long strip, not a square).
+    """
+
+    def __init__(self, cfg: GridConfig | None = None, class_names: Sequence[str] = ()) -> None:
+        self.cfg = cfg if cfg is not None else GridConfig()
+        if self.cfg.l_min >= 0 or self.cfg.l_max <= 0:
+            raise ValueError("GridConfig needs l_min < 0 < l_max")
+        self.class_names: tuple[str, ...] = tuple(class_names)
+        self.res = float(self.cfg.resolution)
+        # window: origin (multiple of the resolution) and arrays; None until the first scan
+        self._ox = 0.0
+        self._oy = 0.0
+        self._lo: NDArray[np.float32] = np.zeros((0, 0), np.float32)
+        self._hits: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
+        self._free: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
+        self._mob: NDArray[np.uint16] = np.zeros((N_MOBILITY, 0, 0), np.uint16)
+        self._cls: NDArray[np.uint16] = np.zeros((0, 0, 0), np.uint16)
+        self._cls_ids: list[int] = []
+        self._layer_of = np.full(len(self.class_names), -1, np.intp)
+        self.n_scans = 0
+        self.n_reallocations = 0
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def spec(self) -> GridSpec | None:
+        """The current window, or None before the first scan."""
+        h, w = self._lo.shape
+        if h == 0:
+            return None
+        return GridSpec(self.res, self._ox, self._oy, w, h)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the grid's layers."""
+        return int(self._lo.nbytes + self._hits.nbytes + self._free.nbytes + self._mob.nbytes + self._cls.nbytes)
+
+    def _ensure(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        """Grow the window so it covers the box [x0, x1] x [y0, y1] (metres, map frame)."""
+        res = self.res
+        h, w = self._lo.shape
+        if h:
+            cx0, cy0 = self._ox, self._oy
+            cx1, cy1 = cx0 + w * res, cy0 + h * res
+            if x0 >= cx0 and y0 >= cy0 and x1 < cx1 and y1 < cy1:
+                return
+        m = float(self.cfg.tile_margin)
+        if not h:
+            nx0, ny0, nx1, ny1 = x0 - m, y0 - m, x1 + m, y1 + m
+        else:
+            nx0 = x0 - m if x0 < cx0 else cx0
+            ny0 = y0 - m if y0 < cy0 else cy0
+            nx1 = x1 + m if x1 >= cx1 else cx1
+            ny1 = y1 + m if y1 >= cy1 else cy1
+        ox = np.floor(nx0 / res) * res
+        oy = np.floor(ny0 / res) * res
+        nw = int(np.ceil((nx1 - ox) / res)) + 1
+        nh = int(np.ceil((ny1 - oy) / res)) + 1
+        lo = np.zeros((nh, nw), np.float32)
+        hits = np.zeros((nh, nw), np.uint16)
+        free = np.zeros((nh, nw), np.uint16)
+        mob = np.zeros((N_MOBILITY, nh, nw), np.uint16)
+        cls = np.zeros((self._cls.shape[0], nh, nw), np.uint16)
+        if h:
+            dc = round((self._ox - ox) / res)
+            dr = round((self._oy - oy) / res)
+            lo[dr:dr + h, dc:dc + w] = self._lo
+            hits[dr:dr + h, dc:dc + w] = self._hits
+            free[dr:dr + h, dc:dc + w] = self._free
+            mob[:, dr:dr + h, dc:dc + w] = self._mob
+            cls[:, dr:dr + h, dc:dc + w] = self._cls
+            self.n_reallocations += 1
+        self._ox, self._oy = float(ox), float(oy)
+        self._lo, self._hits, self._free, self._mob, self._cls = lo, hits, free, mob, cls
+        log.debug("grid window %d x %d cells at (%.2f, %.2f)", nw, nh, self._ox, self._oy)
+
+    def _class_layers(self, ids: NDArray[np.intp]) -> NDArray[np.intp]:
+        """Layer index of each class id, adding layers for classes seen for the first time."""
+        layer = self._layer_of[ids]
+        missing = layer < 0
+        if missing.any():
+            new = np.unique(ids[missing])
+            h, w = self._lo.shape
+            self._cls = np.concatenate([self._cls, np.zeros((new.size, h, w), np.uint16)], axis=0)
+            for c in new:
+                self._layer_of[c] = len(self._cls_ids)
+                self._cls_ids.append(int(c))
+            log.debug("class layers: %s", [self.class_names[c] for c in self._cls_ids])
+            layer = self._layer_of[ids]
+        return layer
+
+    # -- fusion ---------------------------------------------------------------------------
+    def integrate(self, pose: NDArray[np.float64] | Sequence[float], scan: PaintedScan) -> None:
+        """Fuse one painted scan; ``pose`` = base_link (x, y, yaw) in the map frame.
+
+        Cells a return ended in gain ``l_occ`` (once per scan); cells inside the scan's
+        free-space polygon lose ``l_free``; both are clamped to ``[l_min, l_max]``. Returns
+        add their mobility and class to the evidence counts of their cell.
+        """
+        cfg = self.cfg
+        res = self.res
+        pts = scan.points
+        o = scan.origin
+        hit = scan.hit
+        dx = pts[:, 0] - o[0]
+        dy = pts[:, 1] - o[1]
+        ok = np.isfinite(dx) & np.isfinite(dy)
+        if not ok.all():
+            hit = hit & ok
+            dx = np.where(ok, dx, 0.0)
+            dy = np.where(ok, dy, 0.0)
+        rng = np.hypot(dx, dy)
+        # free length per beam: returns stop a margin short of their end point; beams without a
+        # return clear to their end point (the painter's free-space range), at most
+        # max_free_range, but one with returns on both sides within dropout_guard beams (a
+        # dropout) clears no further than they do, so it cannot punch a ray through a wall
+        free_len = np.where(hit, rng - cfg.hit_free_margin, rng)
+        np.clip(free_len, 0.0, cfg.max_free_range, out=free_len)
+        k = int(cfg.dropout_guard)
+        gaps = np.flatnonzero(~hit & ok) if k > 0 else ()
+        if len(gaps) and len(gaps) < rng.size:
+            n = rng.size
+            near = np.where(hit, rng, np.inf)
+            side = np.arange(1, k + 1)
+            li = gaps[:, None] - side
+            ri = gaps[:, None] + side
+            left = np.where(li >= 0, near[np.clip(li, 0, n - 1)], np.inf).min(axis=1)
+            right = np.where(ri < n, near[np.clip(ri, 0, n - 1)], np.inf).min(axis=1)
+            wall = np.maximum(left, right)
+            inner = np.isfinite(wall)
+            g = gaps[inner]
+            free_len[g] = np.clip(wall[inner] - cfg.hit_free_margin, 0.0, free_len[g])
+        scale = free_len / np.maximum(rng, 1e-12)
+
+        # into the map frame: origin + R (end - origin)
+        x, y, yaw = pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        ox_m = x + c * o[0] - s * o[1]
+        oy_m = y + s * o[0] + c * o[1]
+        rx = c * dx - s * dy
+        ry = s * dx + c * dy
+        fx = ox_m + scale * rx
+        fy = oy_m + scale * ry
+        hx = ox_m + rx[hit]
+        hy = oy_m + ry[hit]
+
+        x0, x1 = min(fx.min(), ox_m), max(fx.max(), ox_m)
+        y0, y1 = min(fy.min(), oy_m), max(fy.max(), oy_m)
+        if hx.size:
+            x0, x1 = min(x0, hx.min()), max(x1, hx.max())
+            y0, y1 = min(y0, hy.min()), max(y1, hy.max())
+        self._ensure(x0, y0, x1, y1)
+        H, W = self._lo.shape
+        gx, gy = self._ox, self._oy
+        c0, r0 = max(int((x0 - gx) / res), 0), max(int((y0 - gy) / res), 0)
+        c1, r1 = min(int((x1 - gx) / res) + 1, W), min(int((y1 - gy) / res) + 1, H)
+
+        # hit cells (clipped: a float can round onto the window's far edge)
+        hc = np.clip(((hx - gx) / res).astype(np.intp), c0, c1 - 1)
+        hr = np.clip(((hy - gy) / res).astype(np.intp), r0, r1 - 1)
+
+        # free space: the scan polygon, minus the cells returns of this scan ended in
+        scratch = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        f = (1 << _SHIFT) / res
+        verts = np.empty((fx.size + 1, 2), np.int32)
+        bx, by = gx + res * (c0 + 0.5), gy + res * (r0 + 0.5)
+        verts[0] = round((ox_m - bx) * f), round((oy_m - by) * f)
+        np.rint((fx - bx) * f, out=verts[1:, 0], casting="unsafe")
+        np.rint((fy - by) * f, out=verts[1:, 1], casting="unsafe")
+        cv2.fillPoly(scratch, [verts], 1, cv2.LINE_8, _SHIFT)
+        if cfg.free_erode:
+            # keep free space a cell away from the polygon's edge: rays grazing a surface pass
+            # through the cells it lies in without hitting them
+            scratch = cv2.erode(scratch, _KERNEL3, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        scratch[hr - r0, hc - c0] = 0
+        lo = self._lo[r0:r1, c0:c1]
+        cv2.scaleAdd(scratch.astype(np.float32), -float(cfg.l_free), lo, dst=lo)
+        cv2.max(lo, float(cfg.l_min), dst=lo)
+        fr = self._free[r0:r1, c0:c1]
+        if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
+            np.add(fr, scratch, out=fr, casting="unsafe")
+        else:
+            cv2.add(fr, 1, dst=fr, mask=scratch)
+
+        if hr.size:
+            # one sorted key per (cell, evidence code): codes 0-3 mobility, 4+ class layer
+            flat = hr * W + hc
+            mob = scan.mobility[hit].astype(np.intp)
+            mob[mob >= N_MOBILITY] = 0
+            cid = scan.class_id[hit].astype(np.intp)
+            seen = (cid >= 0) & (cid < len(self.class_names))
+            layer = self._class_layers(cid[seen]) if seen.any() else np.zeros(0, np.intp)
+            n_codes = N_MOBILITY + self._cls.shape[0]
+            keys = np.concatenate([flat * n_codes + mob, flat[seen] * n_codes + N_MOBILITY + layer])
+            keys.sort()
+            keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
+            cell = keys // n_codes
+            code = keys - cell * n_codes
+            ucell = cell[np.concatenate([[True], cell[1:] != cell[:-1]])]
+
+            lo_flat = self._lo.reshape(-1)
+            lo_flat[ucell] = np.minimum(lo_flat[ucell] + np.float32(cfg.l_occ), np.float32(cfg.l_max))
+            _bump(self._hits.reshape(-1), ucell)
+            is_mob = code < N_MOBILITY
+            _bump(self._mob.reshape(-1), code[is_mob] * (H * W) + cell[is_mob])
+            if not is_mob.all():
+                is_cls = ~is_mob
+                _bump(self._cls.reshape(-1), (code[is_cls] - N_MOBILITY) * (H * W) + cell[is_cls])
+        self.n_scans += 1
+
+    def layers(self) -> GridLayers:
+        """A read-only snapshot of the grid (copies; the grid keeps integrating)."""
+        spec = self.spec
+        if spec is None:
+            raise ValueError("the grid is empty: integrate a scan first")
+        return GridLayers(
+            spec=spec,
+            log_odds=_frozen(self._lo.copy()),
+            hits=_frozen(self._hits.copy()),
+            free=_frozen(self._free.copy()),
+            mobility=_frozen(self._mob.copy()),
+            class_counts=_frozen(self._cls.copy()),
+            class_ids=tuple(self._cls_ids),
+            class_names=self.class_names,
+            n_scans=self.n_scans,
+        )
+
+
+def _bump(flat: NDArray[np.uint16], idx: NDArray[np.intp]) -> None:
+    """Add one at unique flat indices of a uint16 array, saturating at 65535."""
+    v = flat[idx]
+    flat[idx] = v + (v < _U16_MAX)

@@ -1,0 +1,235 @@
+"""Scan registration: the base pose of every scan in the map frame.
+
+:class:`Registrar` takes :class:`~semmap.records.PaintedScan` records one at a time,
+in time order, with the wheel-odometry pose at each scan's stamp, and returns the
+pose ``(x, y, yaw)`` of ``base_link`` in the map frame. The map frame is the base
+pose of the first scan (so the first pose is the identity).
+
+Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
+
+``odometry``
+    Wheel odometry alone: ``T_map_base = T_odom_base(first)⁻¹ · T_odom_base``.
+``icp``
+    KISS-ICP alone, as upstream does it: scan-to-local-map ICP from a
+    constant-velocity guess; the ICP result goes into the local map.
+``fused`` (default)
+    An SE(2) EKF predicts with the odometry increment between consecutive scans;
+    ICP starts from that prediction; its result is a pose measurement, gated by
+    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). Rejected or failed
+    ICP leaves the prediction. The fused pose goes into the local map and is the
+    base of the next guess; a scan whose ICP result was rejected is not inserted
+    (it contradicts the prediction, so one of them is wrong). After
+    ``ekf.reset_after`` rejections in a row ICP is trusted again: the filter
+    restarts from the ICP pose (wheel slip, a kidnapped robot). Without odometry
+    at this scan or the previous one, the step runs as in ``icp`` mode and the
+    filter restarts from the ICP pose.
+
+With ``exclude_dynamic``, points painted :attr:`~semmap.records.Mobility.DYNAMIC`
+are neither matched nor inserted into the local map. Only beams with ``hit`` set
+and a range (from ``scan.origin``) within ``[min_range, max_range]`` are used.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..config import RegistrationConfig
+from ..geometry import se2_between, se2_compose, se2_inverse, wrap_angle
+from ..records import Mobility, PaintedScan
+from .ekf import Se2Ekf
+from .kiss import KissMatcher
+
+__all__ = ["Registrar"]
+
+log = logging.getLogger(__name__)
+
+_ZERO = np.zeros(3)
+
+
+def _as_pose(p: ArrayLike | None, what: str) -> NDArray[np.float64] | None:
+    if p is None:
+        return None
+    a = np.asarray(p, dtype=np.float64).reshape(-1)
+    if a.shape != (3,):
+        raise ValueError(f"{what} must be (x, y, yaw), got shape {np.shape(p)}")
+    if not np.all(np.isfinite(a)):
+        return None
+    a = a.copy()
+    a[2] = wrap_angle(a[2])
+    return a
+
+
+class Registrar:
+    """Registers painted scans one after another; see the module docstring for the modes.
+
+    >>> reg = Registrar(RegistrationConfig(mode="fused"))      # doctest: +SKIP
+    >>> for scan, odom in zip(scans, odom_poses):              # doctest: +SKIP
+    ...     pose = reg.register(scan, odom)                    # (x, y, yaw) in the map frame
+    >>> reg.stats["icp_rejected"]                              # doctest: +SKIP
+    """
+
+    def __init__(self, cfg: RegistrationConfig) -> None:
+        self.cfg = cfg
+        self._matcher: KissMatcher | None = None if cfg.mode == "odometry" else KissMatcher(cfg)
+        self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
+        self._pose: NDArray[np.float64] | None = None  # last returned pose (map frame)
+        self._velocity = _ZERO.copy()  # last increment, for the constant-velocity guess
+        self._last_odom: NDArray[np.float64] | None = None  # odometry pose at the previous scan
+        self._map_from_odom: NDArray[np.float64] | None = None  # T_map_odom (odometry mode)
+        self._last_stamp: int | None = None
+        self._counts: dict[str, int] = {
+            "scans": 0,  # scans registered
+            "icp_accepted": 0,  # ICP results used (icp mode: every successful ICP)
+            "icp_rejected": 0,  # ICP results gated out by the EKF (fused)
+            "icp_failed": 0,  # ICP not run or unusable: too few points, empty map, non-finite result
+            "filter_resets": 0,  # fused: the EKF restarted from ICP after ekf.reset_after rejections in a row
+            "odom_missing": 0,  # scans without odometry (fused: ran as icp; odometry: extrapolated)
+            "points_used": 0,  # hit points passed to the down-sampler
+            "points_dynamic_excluded": 0,  # hit points dropped because painted dynamic
+        }
+        self._rejected_run = 0  # ICP results gated out in a row
+        self._max_d2 = 0.0
+        self._seconds = 0.0
+
+    # -- public ------------------------------------------------------------------------
+    @property
+    def stats(self) -> dict[str, Any]:
+        """Counters for the build summary, plus ``mode``, ``seconds`` and ``scans_per_s``."""
+        out: dict[str, Any] = {"mode": self.cfg.mode, **self._counts}
+        out["max_mahalanobis2_accepted"] = round(self._max_d2, 3)
+        out["seconds"] = round(self._seconds, 3)
+        out["scans_per_s"] = round(self._counts["scans"] / self._seconds, 1) if self._seconds > 0 else None
+        return out
+
+    @property
+    def pose(self) -> NDArray[np.float64] | None:
+        """The last pose returned by :meth:`register` (None before the first scan)."""
+        return None if self._pose is None else self._pose.copy()
+
+    def local_map(self) -> NDArray[np.float64]:
+        """KISS-ICP's local map as (M, 2) map-frame points ((0, 2) in ``odometry`` mode)."""
+        return np.zeros((0, 2)) if self._matcher is None else self._matcher.map_points()
+
+    def register(self, scan: PaintedScan, odom_pose: ArrayLike | None) -> NDArray[np.float64]:
+        """Return the base_link pose (x, y, yaw) in the map frame for this scan.
+
+        ``odom_pose``: the wheel-odometry pose (x, y, yaw) of base_link in the odom
+        frame at ``scan.stamp_ns``, or None. The map frame is the first scan's base
+        pose (identity). Scans must come in time order.
+        """
+        t0 = time.perf_counter()
+        if self._last_stamp is not None and scan.stamp_ns < self._last_stamp:
+            raise ValueError(f"scans must be registered in time order ({scan.stamp_ns} < {self._last_stamp})")
+        odom = _as_pose(odom_pose, "odom_pose")
+        if odom is None:
+            self._counts["odom_missing"] += 1
+        if self.cfg.mode == "odometry":
+            pose = self._odometry_step(odom)
+        else:
+            pose = self._scan_step(scan, odom)
+        if self._pose is not None:
+            self._velocity = se2_between(self._pose, pose)
+        self._pose = pose
+        self._last_odom = odom
+        self._last_stamp = scan.stamp_ns
+        self._counts["scans"] += 1
+        self._seconds += time.perf_counter() - t0
+        return pose.copy()
+
+    # -- modes ---------------------------------------------------------------------------
+    def _odometry_step(self, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        if odom is None:  # no odometry: keep moving as before
+            return _ZERO.copy() if self._pose is None else se2_compose(self._pose, self._velocity)
+        if self._map_from_odom is None:  # anchor: this scan's pose is what we have so far
+            here = _ZERO if self._pose is None else self._pose
+            self._map_from_odom = se2_compose(here, se2_inverse(odom))
+        return se2_compose(self._map_from_odom, odom)
+
+    def _scan_step(self, scan: PaintedScan, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        assert self._matcher is not None
+        prepared = self._matcher.prepare(self._points(scan))
+        if self._pose is None:  # first scan: defines the map frame
+            if self._ekf is not None:
+                self._ekf.reset(_ZERO)
+            self._matcher.update_map(prepared, _ZERO)
+            return _ZERO.copy()
+
+        use_odom = self._ekf is not None and odom is not None and self._last_odom is not None
+        if use_odom:
+            assert self._ekf is not None and self._last_odom is not None
+            self._ekf.predict(se2_between(self._last_odom, odom))
+            guess = self._ekf.pose
+        else:
+            guess = se2_compose(self._pose, self._velocity)
+
+        result = self._icp(prepared, guess)
+        if use_odom:
+            assert self._ekf is not None
+            if result is not None:
+                d2 = self._ekf.mahalanobis2(result)
+                if d2 <= self.cfg.ekf.gate_chi2:
+                    self._ekf.update(result)
+                    self._counts["icp_accepted"] += 1
+                    self._max_d2 = max(self._max_d2, d2)
+                    self._matcher.update_threshold(guess, result)
+                    self._rejected_run = 0
+                else:
+                    self._counts["icp_rejected"] += 1
+                    self._rejected_run += 1
+                    log.debug("scan %d: ICP rejected, Mahalanobis² %.1f > %.1f (correction %s)",
+                              scan.stamp_ns, d2, self.cfg.ekf.gate_chi2, np.round(self._ekf.innovation(result), 4))
+                    if 0 < self.cfg.ekf.reset_after <= self._rejected_run:
+                        # ICP has disagreed with odometry for a while: odometry is the suspect
+                        log.info("scan %d: %d ICP results gated out in a row; restarting the filter from ICP",
+                                 scan.stamp_ns, self._rejected_run)
+                        self._ekf.reset(result, self._ekf.R)
+                        self._counts["filter_resets"] += 1
+                        self._rejected_run = 0
+                    else:
+                        # keep the local map clean: a scan that contradicts the prediction is not inserted
+                        return self._ekf.pose
+            pose = self._ekf.pose
+        else:
+            if result is not None:
+                self._counts["icp_accepted"] += 1
+                self._matcher.update_threshold(guess, result)
+            pose = guess if result is None else result
+            if self._ekf is not None:  # fused without odometry: restart the filter from here
+                self._ekf.reset(pose, self._ekf.R if result is not None else self._ekf.cov)
+                self._rejected_run = 0
+        self._matcher.update_map(prepared, pose)
+        return pose
+
+    # -- helpers -------------------------------------------------------------------------
+    def _points(self, scan: PaintedScan) -> NDArray[np.float64]:
+        """Hit points within range, without dynamic ones if configured: (M, 2) base frame."""
+        keep = scan.hit.copy()
+        r = np.hypot(scan.points[:, 0] - scan.origin[0], scan.points[:, 1] - scan.origin[1])
+        keep &= (r >= self.cfg.min_range) & (r <= self.cfg.max_range) & np.isfinite(r)
+        if self.cfg.exclude_dynamic:
+            dyn = keep & (scan.mobility == int(Mobility.DYNAMIC))
+            self._counts["points_dynamic_excluded"] += int(dyn.sum())
+            keep &= ~dyn
+        self._counts["points_used"] += int(keep.sum())
+        return scan.points[keep]
+
+    def _icp(self, prepared: Any, guess: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Run ICP from ``guess``; None (counted as failed) when it cannot give a usable pose."""
+        assert self._matcher is not None
+        n = prepared.source.shape[0]
+        if n < self.cfg.min_points or self._matcher.map_empty:
+            self._counts["icp_failed"] += 1
+            log.debug("ICP skipped: %d points (min %d), map empty: %s", n, self.cfg.min_points,
+                      self._matcher.map_empty)
+            return None
+        result = self._matcher.align(prepared, guess)
+        if not np.all(np.isfinite(result)):
+            self._counts["icp_failed"] += 1
+            log.debug("ICP returned a non-finite pose")
+            return None
+        return result

@@ -17,6 +17,9 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 _LAZY = {
+    "build": "semmap.pipeline",
+    "BuildResult": "semmap.pipeline",
+    "BuildConfig": "semmap.config",
     "simulate": "semmap.sim.tour",
     "SimulationResult": "semmap.sim.tour",
     "bag_info": "semmap.io.bag",
@@ -38,11 +41,12 @@ __all__ = ["__version__", *_LAZY]
 
 if TYPE_CHECKING:  # pragma: no cover
     # ruff: noqa: F401
-    from .config import SimConfig
+    from .config import BuildConfig, SimConfig
     from .errors import SemmapError
     from .io.bag import BagInfo, bag_info
     from .io.calibration import read_calibration, write_calibration
     from .io.mapserver import read_map
+    from .pipeline import BuildResult, build
     from .records import Calibration, CameraIntrinsics, Mobility
     from .sim.scenarios import SCENARIOS
     from .sim.tour import SimulationResult, simulate

@@ -504,3 +504,55 @@ def bag_info(path: str | Path) -> BagInfo:
         message_count=total,
         topics=topics,
     )
+
+
+def topic_types(path: str | Path) -> dict[str, str]:
+    """Topic → message type (``sensor_msgs/msg/LaserScan`` style), without reading messages."""
+    with open_bag(path) as reader:
+        out: dict[str, str] = {}
+        for conn in reader.connections:
+            out.setdefault(conn.topic, conn.msgtype)
+        return out
+
+
+def message_count(path: str | Path, topic: str) -> int:
+    """Messages on ``topic`` as the bag's index counts them (0 if the storage does not say)."""
+    with open_bag(path) as reader:
+        return sum(max(c.msgcount, 0) for c in reader.connections if c.topic == topic)
+
+
+@dataclass
+class ReadStats:
+    """Messages read and skipped per topic while streaming a bag."""
+
+    read: dict[str, int] = field(default_factory=dict)
+    skipped: dict[str, int] = field(default_factory=dict)
+
+
+def iter_messages(path: str | Path, topics: Sequence[str],
+                  stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+    """Stream ``(topic, bag_time_ns, message)`` for the given topics in bag-time order.
+
+    Messages are deserialised one at a time, so memory does not grow with the bag.
+    A message that fails to deserialise is skipped and counted in ``stats.skipped``.
+    """
+    from rosbags.highlevel import AnyReaderError
+
+    stats = stats if stats is not None else ReadStats()
+    p = resolve_bag_path(path)
+    with open_bag(p) as reader:
+        conns = [c for c in reader.connections if c.topic in set(topics)]
+        try:
+            for conn, t_ns, raw in reader.messages(connections=conns):
+                try:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                except (AnyReaderError, ValueError, IndexError, KeyError) as exc:
+                    stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
+                    log.debug("%s: skipped a message on %s (%s)", p, conn.topic, exc)
+                    continue
+                stats.read[conn.topic] = stats.read.get(conn.topic, 0) + 1
+                yield conn.topic, t_ns, msg
+        except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
+            if isinstance(exc, AnyReaderError | OSError | EOFError) or type(exc).__module__.startswith("rosbags"):
+                raise BagError(f"{p}: bag is unreadable or truncated ({exc})") from None
+            raise

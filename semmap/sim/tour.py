@@ -27,9 +27,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import shutil
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -41,8 +38,9 @@ import numpy as np
 
 from ..classes import load_class_table
 from ..config import SimConfig, load_model, load_yaml, merge_overrides
-from ..errors import ConfigError, OutputExistsError, SemmapError
+from ..errors import ConfigError, SemmapError
 from ..geometry import se2_to_se3, se3_from_xyz_rpy, se3_inverse
+from ..io.atomic import atomic_dir
 from ..io.bag import BAG_FORMATS, BagFormat, BagWriter
 from ..io.calibration import write_calibration
 from ..io.mapserver import write_map
@@ -139,25 +137,8 @@ def simulate(
     sc = resolve_scenario(scenario)
     cfg = effective_config(sc, config)
     out = Path(out)
-    if out.exists() and not force:
-        raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the result should not be
-    try:
+    with atomic_dir(out, force) as tmp:
         result = _simulate_into(sc, cfg, tmp, fmt, seed, progress)
-        if out.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-            os.replace(out, trash / "old")
-            os.replace(tmp, out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     bag = out / result.bag.relative_to(tmp)
     return SimulationResult(out, bag, fmt, sc.world.name, seed, result.duration_s, result.topics,
                             time.perf_counter() - t_start)

@@ -1,0 +1,219 @@
+"""Opening a recorded tour: the bag, its topics, frames, calibration and configuration.
+
+A tour is a bag (ROS1 ``.bag`` or ROS2 folder), or a folder holding one (such as
+``semmap simulate`` writes, whose ``tour.yaml`` names its topics). Topic names come
+from the config; missing ones are detected from message types when the choice is
+unambiguous, and an ambiguous or missing topic is an error that lists the candidates.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import BuildConfig, load_model, load_yaml
+from ..errors import BagError, ConfigError
+from ..geometry import se3_from_xyz_rpy
+from ..records import Calibration
+from .bag import iter_messages, resolve_bag_path, topic_types
+from .calibration import read_calibration
+from .messages import odometry_from_msg, scan_from_msg, transforms_from_msg
+from .tf import TfTree
+
+__all__ = ["Tour", "open_tour", "load_build_config", "resolve_topics"]
+
+log = logging.getLogger(__name__)
+
+SCAN_T = "sensor_msgs/msg/LaserScan"
+IMAGE_T = "sensor_msgs/msg/Image"
+COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
+INFO_T = "sensor_msgs/msg/CameraInfo"
+ODOM_T = "nav_msgs/msg/Odometry"
+TF_T = "tf2_msgs/msg/TFMessage"
+
+_LABEL_HINTS = ("label", "seg", "mask", "semantic", "class")
+_TRUTH_HINTS = ("ground_truth", "groundtruth", "gt", "truth", "mocap", "vicon")
+
+
+@dataclass(frozen=True)
+class Topics:
+    scan: str
+    frames: str | None  # the image stream the segmenter consumes (labels or RGB)
+    frames_kind: str  # "labels" | "rgb" | "none"
+    odometry: str | None
+    tf_static: str | None
+    camera_info: str | None
+
+
+@dataclass(frozen=True)
+class Tour:
+    """Everything known about a tour before streaming it."""
+
+    bag: Path
+    folder: Path | None  # the semmap tour folder, if the bag sits in one
+    manifest: dict[str, Any]
+    config: BuildConfig
+    topics: Topics
+    types: dict[str, str]
+    lidar_frame: str
+    base_frame: str
+    T_base_lidar: NDArray[np.float64]
+    calibration: Calibration | None
+    calibration_path: Path | None
+
+
+def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> tuple[BuildConfig, Path]:
+    """The build config from a YAML file (or defaults); returns it and the folder relative paths start from."""
+    data: dict[str, Any] = {}
+    base = Path.cwd()
+    source = "config"
+    if path is not None:
+        loaded = load_yaml(path)
+        if loaded is not None and not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: expected a mapping at the top level")
+        data = loaded or {}
+        base = Path(path).resolve().parent
+        source = str(path)
+    if overrides:
+        from ..config import merge_overrides
+
+        data = merge_overrides(data, overrides)
+    cfg = load_model(BuildConfig, data, source)
+    return cfg, base
+
+
+def _pick(kind: str, wanted: str | None, candidates: list[str], types: dict[str, str], bag: Path,
+          required: bool) -> str | None:
+    if wanted is not None:
+        if wanted.lower() == "none":
+            return None
+        if wanted not in types:
+            raise BagError(f"{bag}: topic {wanted} ({kind}) is not in the bag "
+                           f"(topics: {', '.join(sorted(types)) or 'none'})")
+        return wanted
+    if len(candidates) == 1:
+        return candidates[0]
+    if not candidates:
+        if required:
+            raise BagError(f"{bag}: no {kind} topic in the bag")
+        return None
+    raise BagError(f"{bag}: several {kind} topics ({', '.join(sorted(candidates))}); "
+                   f"choose one with topics.{kind} in the config")
+
+
+def resolve_topics(cfg: BuildConfig, types: dict[str, str], bag: Path, manifest: dict[str, Any],
+                   consumes: str) -> Topics:
+    """Resolve topic names from the config, the tour manifest, then the bag's message types."""
+    t = cfg.topics
+    known = manifest.get("topics", {}) if manifest else {}
+
+    def want(name: str, key: str | None = None) -> str | None:
+        v = getattr(t, name)
+        if v is None and key and key in known and known[key] in types:
+            return str(known[key])
+        return v
+
+    scans = [k for k, v in types.items() if v == SCAN_T]
+    scan = _pick("scan", want("scan", "scan"), scans, types, bag, required=True)
+    assert scan is not None
+    odoms = [k for k, v in types.items() if v == ODOM_T and not any(h in k.lower() for h in _TRUTH_HINTS)]
+    odometry = _pick("odometry", want("odometry", "odometry"), odoms, types, bag, required=False)
+    if odometry is not None and types[odometry] != ODOM_T:
+        raise BagError(f"{bag}: topic {odometry} is {types[odometry]}, not nav_msgs/Odometry")
+    images = [k for k, v in types.items() if v in (IMAGE_T, COMPRESSED_T)]
+    label_like = [k for k in images if any(h in k.lower() for h in _LABEL_HINTS)]
+    rgb_like = [k for k in images if k not in label_like]
+    if consumes == "labels":
+        frames = _pick("labels", want("labels", "labels"), label_like, types, bag, required=False)
+        kind = "labels"
+    else:
+        frames = _pick("image", want("image", "image"), rgb_like, types, bag, required=False)
+        kind = "rgb"
+    infos = [k for k, v in types.items() if v == INFO_T]
+    camera_info = _pick("camera_info", want("camera_info", "camera_info"), infos, types, bag, required=False) \
+        if infos or t.camera_info else None
+    tf_static = t.tf_static if t.tf_static in types else None
+    return Topics(scan, frames, kind if frames else "none", odometry, tf_static, camera_info)
+
+
+def _first(bag: Path, topic: str) -> Any:
+    for _, _, msg in iter_messages(bag, [topic]):
+        return msg
+    raise BagError(f"{bag}: topic {topic} has no messages")
+
+
+def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibration: str | Path | None = None,
+              consumes: str = "labels") -> Tour:
+    """Inspect a tour: topics, frames, ``T_base_lidar`` and the calibration."""
+    bag = resolve_bag_path(tour)
+    p = Path(tour)
+    folder = p if p.is_dir() and (p / "tour.yaml").is_file() else (
+        bag.parent if (bag.parent / "tour.yaml").is_file() else None)
+    manifest: dict[str, Any] = {}
+    if folder is not None:
+        m = load_yaml(folder / "tour.yaml")
+        manifest = m if isinstance(m, dict) else {}
+    types = topic_types(bag)
+    topics = resolve_topics(config, types, bag, manifest, consumes)
+
+    scan0 = scan_from_msg(_first(bag, topics.scan))
+    lidar_frame = config.frames.lidar or scan0.frame_id
+    if not lidar_frame:
+        raise BagError(f"{bag}: scans on {topics.scan} have an empty frame_id; set frames.lidar")
+    base_frame = config.frames.base
+    if base_frame is None and topics.odometry:
+        base_frame = odometry_from_msg(_first(bag, topics.odometry))[2]
+    base_frame = base_frame or "base_link"
+
+    # T_base_lidar: the config, else /tf_static (any chain of frames)
+    if config.frames.base_T_lidar is not None:
+        t_base_lidar = se3_from_xyz_rpy(config.frames.base_T_lidar.xyz, config.frames.base_T_lidar.rpy)
+    else:
+        tree = TfTree()
+        for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
+            n = 0
+            for _, _, msg in iter_messages(bag, [tf_topic]):
+                for _, parent, child, mat in transforms_from_msg(msg):
+                    if tf_topic == topics.tf_static or child not in tree:
+                        tree.add(parent, child, mat)
+                n += 1
+                if tf_topic != topics.tf_static and n > 200:  # /tf: a first look is enough
+                    break
+            if base_frame in tree and lidar_frame in tree:
+                break
+        if base_frame == lidar_frame:
+            t_base_lidar = np.eye(4)
+        elif base_frame in tree and lidar_frame in tree:
+            t_base_lidar = tree.lookup(base_frame, lidar_frame)
+        elif topics.odometry is None:
+            log.warning("no transform %s -> %s; mapping in the LiDAR frame", base_frame, lidar_frame)
+            base_frame, t_base_lidar = lidar_frame, np.eye(4)
+        else:
+            raise BagError(f"{bag}: no transform from {base_frame} to {lidar_frame} in /tf_static or /tf; "
+                           f"set frames.base_T_lidar in the config")
+
+    calib = None
+    calib_path: Path | None = None
+    if topics.frames is not None:
+        if calibration is not None:
+            calib_path = Path(calibration)
+        elif config.calibration is not None:
+            c = Path(config.calibration)
+            calib_path = c if c.is_absolute() else config_dir / c
+        elif folder is not None and (folder / "calibration.yaml").is_file():
+            calib_path = folder / "calibration.yaml"
+        elif (bag.parent / "calibration.yaml").is_file():
+            calib_path = bag.parent / "calibration.yaml"
+        else:
+            raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration; "
+                              f"pass --calibration FILE or set 'calibration:' in the config")
+        calib = read_calibration(calib_path)
+        if calib.lidar_frame and calib.lidar_frame != lidar_frame:
+            log.warning("%s: calibration is for LiDAR frame %r, scans are in %r", calib_path,
+                        calib.lidar_frame, lidar_frame)
+    return Tour(bag, folder, manifest, config, topics, types, lidar_frame, base_frame, t_base_lidar, calib, calib_path)

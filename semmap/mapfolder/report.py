@@ -1,0 +1,182 @@
+"""The pictures and the Markdown report of a map folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
+
+from ..geometry import se2_between, se2_compose  # noqa: E402
+from ..palette import MOBILITY_COLORS, class_color  # noqa: E402
+from ..records import Mobility  # noqa: E402
+
+if TYPE_CHECKING:
+    from ..grid import CleanedMap, GridLayers
+    from ..pipeline import _Pipeline
+
+__all__ = ["render_pictures", "write_report", "semantic_image"]
+
+_FREE = (255, 255, 255)
+_UNKNOWN = (205, 205, 205)
+_REMOVED = (255, 190, 190)
+
+
+def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[str, ...]
+                   ) -> tuple[np.ndarray, dict[str, tuple[int, int, int]]]:
+    """An RGB image (grid order) of the cleaned map coloured by mobility and class, and its legend."""
+    img = np.empty(cleaned.spec.shape + (3,), np.uint8)
+    img[:] = _UNKNOWN
+    img[cleaned.free] = _FREE
+    legend: dict[str, tuple[int, int, int]] = {"free": _FREE, "unknown": _UNKNOWN}
+    static = cleaned.occupied & ~cleaned.semi_static
+    img[static] = MOBILITY_COLORS[Mobility.STATIC]
+    legend["static"] = MOBILITY_COLORS[Mobility.STATIC]
+    if cleaned.dynamic_removed.any():
+        img[cleaned.dynamic_removed] = _REMOVED
+        legend["dynamic (removed)"] = _REMOVED
+    if cleaned.semi_static.any():
+        img[cleaned.semi_static] = MOBILITY_COLORS[Mobility.SEMI_STATIC]
+        if layers.class_counts.shape[0] and class_names:
+            best = np.argmax(layers.class_counts, axis=0)
+            has = layers.class_counts.max(axis=0) > 0
+            for k, cid in enumerate(layers.class_ids):
+                name = class_names[cid]
+                sel = cleaned.semi_static & has & (best == k)
+                if sel.any():
+                    img[sel] = class_color(name)
+                    legend[f"semi-static: {name}"] = class_color(name)
+        legend["semi-static (class unseen)"] = MOBILITY_COLORS[Mobility.SEMI_STATIC]
+    return img, legend
+
+
+def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _Pipeline) -> dict[str, str]:
+    """Draw semantic.png, report/trajectory.png and report/classes.png; return their relative paths."""
+    (out / "report").mkdir(exist_ok=True)
+    spec = cleaned.spec
+    extent = (spec.origin_x, spec.origin_x + spec.width * spec.resolution,
+              spec.origin_y, spec.origin_y + spec.height * spec.resolution)
+    poses = np.asarray(pipe.trace.poses).reshape(-1, 3)
+    img, legend = semantic_image(cleaned, layers, pipe.class_names)
+    w_m, h_m = extent[1] - extent[0], extent[3] - extent[2]
+    fig_w = 11.0
+    fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.0, 3.5, 12.0))
+    fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
+    ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
+    ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=0.8, alpha=0.7)
+    handles = [Patch(facecolor=np.array(c) / 255, edgecolor="0.6", label=k) for k, c in legend.items()]
+    handles.append(plt.Line2D([], [], color="#1f5fbf", label="robot path"))
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    bar = 1.0 if w_m < 15 else 5.0
+    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower right", pad=0.4, frameon=True,
+                                  size_vertical=spec.resolution * 2))
+    ax.set_xlabel("x [m] (map frame)")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"cleaned semantic map: {int(cleaned.occupied.sum())} occupied cells, "
+                 f"{int(cleaned.semi_static.sum())} semi-static, {int(cleaned.dynamic_removed.sum())} dynamic "
+                 f"removed, {len(cleaned.objects)} movable objects", fontsize=9)
+    ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(out / "semantic.png")
+    plt.close(fig)
+
+    # trajectory: the map-frame estimate and the wheel odometry, aligned at the first scan
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
+    ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
+              cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+    ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=1.4, label=f"estimate ({pipe.cfg.registration.mode})")
+    odo = [(i, p) for i, p in enumerate(pipe.trace.odom) if p is not None]
+    if odo:
+        i0, p0 = odo[0]
+        o = np.asarray([p for _, p in odo])
+        o_map = se2_compose(poses[i0], se2_between(p0, o))
+        ax.plot(o_map[:, 0], o_map[:, 1], "--", color="#f58231", lw=1.0, label="wheel odometry (aligned at start)")
+    ax.plot(poses[0, 0], poses[0, 1], "s", color="#1f5fbf", label="start")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title("trajectory", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "report" / "trajectory.png")
+    plt.close(fig)
+
+    # painted hits by class and by mobility
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6), dpi=100, gridspec_kw={"width_ratios": [1, 2]})
+    names = ["unknown", "static", "semi_static", "dynamic"]
+    a1.bar(names, pipe.mobility_hits, color=[np.array(MOBILITY_COLORS[Mobility(i)]) / 255 for i in range(4)])
+    a1.set_title("LiDAR hits by mobility", fontsize=9)
+    a1.tick_params(axis="x", labelrotation=30, labelsize=8)
+    idx = [i for i in np.argsort(pipe.class_hits)[::-1] if pipe.class_hits[i] > 0][:15]
+    if idx:
+        a2.barh([pipe.class_names[i] for i in idx][::-1], [pipe.class_hits[i] for i in idx][::-1],
+                color=[np.array(class_color(pipe.class_names[i])) / 255 for i in idx][::-1])
+    a2.set_title("LiDAR hits painted with an object class" if idx else "no object classes painted", fontsize=9)
+    a2.set_xscale("log" if idx else "linear")
+    fig.tight_layout()
+    fig.savefig(out / "report" / "classes.png")
+    plt.close(fig)
+    return {"semantic": "semantic.png", "trajectory": "report/trajectory.png", "classes": "report/classes.png"}
+
+
+def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> None:
+    """A Markdown report a person reads."""
+    m, c, t, th = s["map"], s["counts"], s["timings_s"], s["throughput"]
+    lines = [
+        "# semmap build report",
+        "",
+        f"Tour `{s['tour']['bag']}`" + (f" (scenario `{s['tour']['scenario']}`)" if s["tour"]["scenario"] else "")
+        + f", {s['tour']['duration_s']:.1f} s, {c['scans']} scans.",
+        "",
+        f"![semantic map]({pictures['semantic']})",
+        "",
+        "## Map",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| size | {m['size_m'][0]} m × {m['size_m'][1]} m ({m['size_cells'][0]} × {m['size_cells'][1]} cells at "
+        f"{m['resolution']} m) |",
+        f"| occupied cells | {m['occupied_cells']} |",
+        f"| semi-static cells (flagged, kept as obstacles) | {m['semi_static_cells']} |",
+        f"| dynamic cells removed | {m['dynamic_cells_removed']} |",
+        f"| movable objects | {m['semi_static_objects']} "
+        + ("(" + ", ".join(f"{k}: {v}" for k, v in sorted(m["semi_static_objects_by_class"].items())) + ")"
+           if m["semi_static_objects_by_class"] else "") + " |",
+        "",
+        "## Trajectory",
+        "",
+        f"Registration mode `{s['registration']['mode']}`.",
+        "",
+        f"![trajectory]({pictures['trajectory']})",
+        "",
+        "## Classes",
+        "",
+        f"Segmentation: backend `{s['painting']['backend']}`, class list `{s['painting']['class_list']}`; "
+        f"{s['painting']['scans_painted']} of {c['scans']} scans had an image, "
+        f"{100 * s['painting']['points_in_view_fraction']:.0f} % of their returns were in view.",
+        "",
+        f"![classes]({pictures['classes']})",
+        "",
+        "## Timings",
+        "",
+        "| stage | seconds |",
+        "|---|---:|",
+        *[f"| {k} | {v:.2f} |" for k, v in t.items()],
+        "",
+        f"Throughput: {th['scans_per_s']} scans/s through read, paint, register and fuse "
+        f"({th['real_time_factor']}× real time); peak memory {s['peak_rss_mb']:.0f} MB.",
+        "",
+        "## Messages",
+        "",
+        "| topic | read | skipped |",
+        "|---|---:|---:|",
+        *[f"| {k} | {v} | {s['messages']['skipped'].get(k, 0)} |" for k, v in sorted(s["messages"]["read"].items())],
+        "",
+    ]
+    path.write_text("\n".join(lines), encoding="utf-8")

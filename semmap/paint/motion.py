@@ -1,0 +1,70 @@
+"""Wheel odometry as a time series: interpolated poses for deskewing and synchronisation."""
+
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..geometry import wrap_angle
+
+__all__ = ["OdomTrack"]
+
+
+class OdomTrack:
+    """A sliding window of odometry poses ``(x, y, yaw)`` of base_link in the odom frame.
+
+    Poses are interpolated linearly in position and along the shortest arc in yaw.
+    Old samples are dropped with :meth:`trim`, so memory stays bounded on long tours.
+    """
+
+    def __init__(self, max_gap_s: float = 0.5) -> None:
+        self.max_gap_ns = int(max_gap_s * 1e9)
+        self._t: list[int] = []
+        self._p: list[NDArray[np.float64]] = []
+        self.out_of_order = 0
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    @property
+    def last_ns(self) -> int | None:
+        return self._t[-1] if self._t else None
+
+    def add(self, stamp_ns: int, pose: NDArray[np.float64]) -> None:
+        if self._t and stamp_ns <= self._t[-1]:
+            self.out_of_order += 1  # repeated or backwards stamps are dropped, and counted
+            return
+        self._t.append(int(stamp_ns))
+        self._p.append(np.asarray(pose, dtype=np.float64))
+
+    def trim(self, before_ns: int) -> None:
+        """Forget samples older than ``before_ns`` (keeping one before it for interpolation)."""
+        k = bisect.bisect_left(self._t, before_ns) - 1
+        if k > 0:
+            del self._t[:k]
+            del self._p[:k]
+
+    def covers(self, t_ns: int) -> bool:
+        return bool(self._t) and self._t[0] <= t_ns <= self._t[-1]
+
+    def interpolate(self, t_ns: NDArray[np.int64] | int) -> NDArray[np.float64] | None:
+        """Poses at ``t_ns`` (scalar → (3,), array → (N, 3)); None if any time is not covered
+        or falls in a gap longer than ``max_gap_s`` between samples."""
+        if len(self._t) < 2:
+            return None
+        tt = np.atleast_1d(np.asarray(t_ns, dtype=np.int64))
+        t = np.asarray(self._t, dtype=np.int64)
+        if tt.min() < t[0] or tt.max() > t[-1]:
+            return None
+        k = np.clip(np.searchsorted(t, tt, side="right") - 1, 0, len(t) - 2)
+        gap = t[k + 1] - t[k]
+        if np.any(gap > self.max_gap_ns):
+            return None
+        p = np.asarray(self._p)
+        f = ((tt - t[k]) / np.maximum(gap, 1)).astype(np.float64)[:, None]
+        a, b = p[k], p[k + 1]
+        out = a + f * (b - a)
+        out[:, 2] = wrap_angle(a[:, 2] + f[:, 0] * wrap_angle(b[:, 2] - a[:, 2]))
+        return out[0] if np.ndim(t_ns) == 0 else out

@@ -1,0 +1,191 @@
+"""Point painting: LiDAR beams → base-frame points → camera pixels → class and mobility.
+
+For each scan the painter
+
+1. turns ranges into points in the LiDAR frame and maps them into the base frame
+   with ``T_base_lidar`` (from ``/tf_static`` or the config);
+2. deskews them: each beam is fired at its own time while the robot moves, so each
+   is moved to the scan's reference time (the middle beam) through interpolated
+   wheel odometry;
+3. brings them to the image's capture time the same way (the robot moves between
+   the scan stamp and the image stamp), maps them into the camera with
+   ``T_cam_lidar @ T_lidar_base`` and projects them with the calibrated camera model;
+4. reads the label under each point and maps class → mobility through the class table.
+
+Points that land outside the image, behind the camera, or on no image at all are
+``unknown`` (mobility 0); points inside the image on no mask are ``static``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..classes import ClassTable
+from ..config import PaintConfig, SyncConfig
+from ..geometry import project_points, se2_between, se3_apply, se3_inverse
+from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
+from .motion import OdomTrack
+
+__all__ = ["Painter", "PaintStats"]
+
+
+@dataclass
+class PaintStats:
+    scans: int = 0
+    painted: int = 0  # scans that had an image
+    points_in_view: int = 0
+    points_total: int = 0
+    deskewed: int = 0
+    motion_compensated: int = 0
+
+
+def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
+    """The range of undistorted normalised coordinates (x/z, y/z) that land in the image.
+
+    Used to reject points far outside the field of view, which OpenCV's distortion
+    polynomials can fold back into the image.
+    """
+    intr = calib.intrinsics
+    w, h = intr.width, intr.height
+    u = np.linspace(0, w - 1, 33)
+    v = np.linspace(0, h - 1, 25)
+    border = np.concatenate([np.column_stack([u, np.zeros_like(u)]), np.column_stack([u, np.full_like(u, h - 1)]),
+                             np.column_stack([np.zeros_like(v), v]), np.column_stack([np.full_like(v, w - 1), v])])
+    pts = border.reshape(-1, 1, 2).astype(np.float64)
+    if intr.model == "fisheye":
+        und = cv2.fisheye.undistortPoints(pts, intr.K, intr.D)
+    else:
+        und = cv2.undistortPoints(pts, intr.K, intr.D)
+    und = und.reshape(-1, 2)
+    (x0, y0), (x1, y1) = und.min(axis=0), und.max(axis=0)
+    mx, my = 0.05 * (x1 - x0), 0.05 * (y1 - y0)
+    return float(x0 - mx), float(x1 + mx), float(y0 - my), float(y1 + my)
+
+
+class Painter:
+    """Paint scans with a calibrated camera's segmentations."""
+
+    def __init__(
+        self,
+        T_base_lidar: NDArray[np.float64],
+        calibration: Calibration | None,
+        class_names: tuple[str, ...],
+        class_table: ClassTable,
+        paint_cfg: PaintConfig,
+        sync_cfg: SyncConfig,
+        max_free_range: float,
+    ) -> None:
+        self.T_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)
+        self.calib = calibration
+        self.class_names = tuple(class_names)
+        self.paint_cfg = paint_cfg
+        self.sync_cfg = sync_cfg
+        self.max_free_range = max_free_range
+        # label value → mobility and class id; value 0 (no object) is static structure
+        mob = [Mobility.STATIC] + [class_table.mobility_of(n) for n in self.class_names]
+        self._mobility_lut = np.array([int(m) for m in mob], dtype=np.uint8)
+        self._class_lut = np.arange(-1, len(self.class_names), dtype=np.int16)
+        if calibration is not None:
+            self.T_cam_base = calibration.T_cam_lidar @ se3_inverse(self.T_base_lidar)
+            self._bounds = _normalised_bounds(calibration)
+        self.stats = PaintStats()
+
+    def _beams(self, scan: Scan) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+        """LiDAR-frame points (N, 3), the valid-return mask, and the free-space range per beam."""
+        r = scan.ranges.astype(np.float64)
+        lo = max(scan.range_min, 1e-3)
+        finite = np.isfinite(r)
+        hit = finite & (r >= lo) & (r <= scan.range_max)
+        # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
+        no_return = np.isposinf(r) | (finite & (r > scan.range_max))
+        free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
+        a = scan.angles
+        pts = np.column_stack([free * np.cos(a), free * np.sin(a), np.zeros_like(a)])
+        return pts, hit, free
+
+    def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
+        """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
+        n = scan.ranges.size
+        pts_lidar, hit, _ = self._beams(scan)
+        pts_base = se3_apply(self.T_base_lidar, pts_lidar)  # (N, 3) at each beam's own time
+        origin = self.T_base_lidar[:2, 3]
+        dt_ns = int(round(scan.time_increment * 1e9)) if scan.time_increment > 0 else 0
+        beam_t = scan.stamp_ns + dt_ns * np.arange(n, dtype=np.int64)
+        t_ref = int(beam_t[n // 2]) if n else scan.stamp_ns
+        self.stats.scans += 1
+
+        xy = pts_base[:, :2].copy()
+        origins = np.repeat(origin[None, :], n, axis=0)
+        if self.sync_cfg.deskew and dt_ns and odom is not None:
+            poses = odom.interpolate(np.concatenate([beam_t, [t_ref]]))
+            if poses is not None:
+                rel = se2_between(poses[-1], poses[:-1])  # beam-time base pose seen from the reference
+                c, s = np.cos(rel[:, 2]), np.sin(rel[:, 2])
+                xy = np.column_stack([rel[:, 0] + c * xy[:, 0] - s * xy[:, 1],
+                                      rel[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
+                origins = np.column_stack([rel[:, 0] + c * origin[0] - s * origin[1],
+                                           rel[:, 1] + s * origin[0] + c * origin[1]])
+                self.stats.deskewed += 1
+
+        mobility = np.zeros(n, np.uint8)
+        class_id = np.full(n, -1, np.int16)
+        if seg is not None and self.calib is not None:
+            self._paint_labels(xy, pts_base[:, 2], hit, t_ref, odom, seg, mobility, class_id)
+        return PaintedScan(
+            stamp_ns=t_ref,
+            origin=origins[n // 2] if n else origin,
+            points=xy,
+            hit=hit,
+            mobility=mobility,
+            class_id=class_id,
+            class_names=self.class_names,
+            frame_id=scan.frame_id,
+        )
+
+    def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_], t_ref: int,
+                      odom: OdomTrack | None, seg: Segmentation, mobility: NDArray[np.uint8],
+                      class_id: NDArray[np.int16]) -> None:
+        assert self.calib is not None
+        intr = self.calib.intrinsics
+        if seg.label.shape != (intr.height, intr.width):
+            raise ValueError(f"label image is {seg.label.shape[1]}x{seg.label.shape[0]}, calibration says "
+                             f"{intr.width}x{intr.height}")
+        pts_xy = xy
+        if self.sync_cfg.motion_compensation and odom is not None and seg.stamp_ns != t_ref:
+            poses = odom.interpolate(np.array([seg.stamp_ns, t_ref], dtype=np.int64))
+            if poses is not None:
+                rel = se2_between(poses[0], poses[1])  # reference-time base pose seen from the image time
+                c, s = np.cos(rel[2]), np.sin(rel[2])
+                pts_xy = np.column_stack([rel[0] + c * xy[:, 0] - s * xy[:, 1], rel[1] + s * xy[:, 0] + c * xy[:, 1]])
+                self.stats.motion_compensated += 1
+        sel = np.nonzero(hit)[0]
+        if sel.size == 0:
+            return
+        p_base = np.column_stack([pts_xy[sel], z[sel]])
+        p_cam = se3_apply(self.T_cam_base, p_base)
+        zc = p_cam[:, 2]
+        x0, x1, y0, y1 = self._bounds
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
+        front = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1) & (yn >= y0) & (yn <= y1)
+        uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
+                                    min_depth=self.paint_cfg.min_depth)
+        ok = inside & front
+        if not ok.any():
+            return
+        px = np.rint(uv[ok]).astype(np.intp)
+        px[:, 0] = np.clip(px[:, 0], 0, intr.width - 1)
+        px[:, 1] = np.clip(px[:, 1], 0, intr.height - 1)
+        labels = seg.label[px[:, 1], px[:, 0]].astype(np.intp)
+        known = labels <= len(self.class_names)  # values beyond the class list are treated as no object
+        labels = np.where(known, labels, 0)
+        idx = sel[ok]
+        mobility[idx] = self._mobility_lut[labels]
+        class_id[idx] = self._class_lut[labels]
+        self.stats.painted += 1
+        self.stats.points_in_view += int(ok.sum())
+        self.stats.points_total += int(hit.sum())

@@ -1,0 +1,198 @@
+#!/usr/bin/env python3
+"""Benchmark `semmap build` against ground truth: map quality, trajectory accuracy, speed.
+
+For each simulated scenario (default: ward, office) and each trajectory source
+(wheel odometry alone, KISS-ICP alone, EKF fusion) it builds the map in its own
+process and scores it:
+
+* F1 of occupied cells against ground-truth static ∪ semi-static at 1-cell tolerance
+  (recall over the truth cells some true LiDAR beam reached);
+* ghost rate: share of the cells people swept that stay occupied in the cleaned map;
+* precision and recall of the semi-static flag (1-cell tolerance);
+* ATE RMSE of the trajectory after SE(2) alignment (the same alignment carries the map
+  into the ground-truth frame for the map scores);
+* throughput of the pipeline (read, paint, register, fuse; label images from the bag,
+  so no segmentation model runs), real-time factor and peak RSS.
+
+With ../shared/data present it also builds the real leg_tracker bags (LiDAR only,
+stationary sensor) and scores how many hand-labelled leg positions stay occupied.
+
+    python tools/bench_build.py                     # ward + office, 3 modes, leg_tracker
+    python tools/bench_build.py --scenarios demo --modes fused
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import date
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from bench_simulate import machine  # noqa: E402
+
+CHILD = r"""
+import json, sys
+from semmap.pipeline import build
+r = build(sys.argv[1], sys.argv[2], config=sys.argv[3] if sys.argv[3] != "-" else None,
+          overrides=json.loads(sys.argv[4]))
+print(json.dumps({"summary_path": str(r.out / "summary.json"), "elapsed_s": r.elapsed_s}))
+"""
+
+
+def run_build(tour: Path, out: Path, overrides: dict, config: str = "-") -> dict:
+    res = subprocess.run([sys.executable, "-c", CHILD, str(tour), str(out), config, json.dumps(overrides)],
+                         capture_output=True, text=True)
+    if res.returncode != 0:
+        raise RuntimeError(f"build of {tour} failed:\n{res.stderr[-3000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def score_simulated(tour: Path, mapdir: Path) -> dict:
+    import numpy as np
+
+    from semmap.geometry import se2_apply, se2_compose, se3_from_xyz_rpy, se3_to_se2
+    from semmap.grid.metrics import ghost_rate, observable_cells, occupancy_f1, semi_static_scores
+    from semmap.io.mapserver import read_map
+    from semmap.io.tum import read_tum
+    from semmap.io.yamlio import read_yaml
+    from semmap.register.metrics import ate_errors
+
+    gt = tour / "ground_truth"
+    est_t, est_p = read_tum(mapdir / "trajectory.tum")
+    ref_t, ref_p = read_tum(gt / "trajectory.tum")
+    err, t_gt_map = ate_errors(est_t, est_p, ref_t, ref_p)
+    occ = read_map(mapdir / "map.yaml")
+    semi = read_map(mapdir / "semi_static.yaml")
+    truth = read_map(gt / "occupancy.yaml")
+    truth_semi = read_map(gt / "semi_static.yaml")
+    swept = read_map(gt / "people_swept.yaml")
+    # observable truth: cells some true beam ended on (people excluded)
+    beams = np.load(gt / "beams.npz")
+    cfg = read_yaml(tour / "config.yaml")
+    mount = cfg["lidar"]["mount"]
+    lidar2 = se3_to_se2(se3_from_xyz_rpy(mount["xyz"], mount["rpy"]))
+    r, a, mob = beams["range"], beams["angles"], beams["mobility"]
+    ends = []
+    for k in range(r.shape[0]):
+        ok = np.isfinite(r[k]) & (mob[k] != 3)
+        pts = np.column_stack([r[k, ok] * np.cos(a[ok]), r[k, ok] * np.sin(a[ok])])
+        ends.append(se2_apply(se2_compose(beams["base_pose"][k], lidar2), pts))
+    ends = np.concatenate(ends)
+    observable = observable_cells(truth.occupied, truth.spec, ends)
+    observable_semi = observable & truth_semi.occupied
+    f1 = occupancy_f1(occ.occupied, occ.spec, truth.occupied, truth.spec, observable, 1, t_gt_map)
+    ss = semi_static_scores(semi.occupied, semi.spec, truth_semi.occupied, truth_semi.spec, observable_semi, 1,
+                            t_gt_map)
+    ghost = ghost_rate(occ.occupied, occ.spec, swept.occupied, swept.spec, t_gt_map)
+    return {"ate_rmse_m": float(np.sqrt(np.mean(err ** 2))), "f1": f1.f1, "precision": f1.precision,
+            "recall": f1.recall, "ghost_rate": ghost, "semi_precision": ss.precision, "semi_recall": ss.recall}
+
+
+def score_legs(bag: Path, mapdir: Path) -> dict:
+    """Leg positions (hand-labelled, laser frame) that stay occupied in the cleaned map."""
+    import numpy as np
+
+    from semmap.geometry import se2_apply
+    from semmap.grid.metrics import points_to_mask
+    from semmap.io.bag import iter_messages
+    from semmap.io.mapserver import read_map
+    from semmap.io.messages import stamp_ns
+    from semmap.io.tum import read_tum
+    from semmap.register.metrics import interpolate_poses
+
+    occ = read_map(mapdir / "map.yaml")
+    grid = np.load(mapdir / "grid.npz")
+    est_t, est_p = read_tum(mapdir / "trajectory.tum")
+    legs, scans_t = [], []
+    for topic, _, msg in iter_messages(bag, ["/leg_cluster_positions", "/training_scan"]):
+        if topic == "/training_scan":
+            scans_t.append(stamp_ns(msg.header))
+        else:
+            pts = np.array([[p.position.x, p.position.y] for p in msg.poses]).reshape(-1, 2)
+            if pts.size and scans_t:  # positions belong to the scan just read
+                pose = interpolate_poses(est_t, est_p, [scans_t[-1]])[0]
+                if np.all(np.isfinite(pose)):
+                    legs.append(se2_apply(pose, pts))
+    pts = np.concatenate(legs) if legs else np.zeros((0, 2))
+    leg_cells = points_to_mask(pts, occ.spec)
+    import cv2
+
+    near = cv2.dilate(leg_cells.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)  # legs are ~10 cm
+    hit = grid["hits"] > 0
+    return {"leg_positions": int(pts.shape[0]), "leg_cells": int(leg_cells.sum()),
+            "leg_cells_ever_hit": float((hit & near).sum() / max(near.sum(), 1)),
+            "leg_cells_occupied_in_map": float((occ.occupied & near).sum() / max(near.sum(), 1))}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenarios", nargs="+", default=["ward", "office"])
+    ap.add_argument("--modes", nargs="+", default=["odometry", "icp", "fused"])
+    ap.add_argument("--tours", type=Path, default=Path(tempfile.gettempdir()) / "semmap-bench-tours",
+                    help="where simulated tours are cached (seed 0)")
+    ap.add_argument("--data", type=Path, default=Path(os.environ.get("SEMMAP_DATA", REPO.parent / "shared" / "data")))
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+
+    from semmap.sim.tour import simulate
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="semmap-bench-maps-") as tmp:
+        for sc in args.scenarios:
+            tour = args.tours / sc
+            if not (tour / "tour.yaml").is_file():
+                simulate(sc, tour, seed=0, force=True)
+            for mode in args.modes:
+                out = Path(tmp) / f"{sc}-{mode}"
+                t = time.perf_counter()
+                res = run_build(tour, out, {"registration": {"mode": mode}})
+                summary = json.loads(Path(res["summary_path"]).read_text())
+                row = {"scenario": sc, "mode": mode, **score_simulated(tour, out),
+                       "scans": summary["counts"]["scans"], "scans_per_s": summary["throughput"]["scans_per_s"],
+                       "real_time_factor": summary["throughput"]["real_time_factor"],
+                       "peak_rss_mb": summary["peak_rss_mb"], "wall_s": time.perf_counter() - t}
+                rows.append(row)
+                print(f"  {sc:<8} {mode:<9} ATE {row['ate_rmse_m']:.3f} m  F1 {row['f1']:.3f}  "
+                      f"ghost {100 * row['ghost_rate']:.2f} %  semi P {row['semi_precision']:.3f} "
+                      f"R {row['semi_recall']:.3f}  {row['scans_per_s']} scans/s", file=sys.stderr)
+        legs = []
+        leg_dir = args.data / "leg_tracker"
+        if leg_dir.is_dir():
+            for bag in sorted(leg_dir.glob("positive_*_extracted.bag")):
+                out = Path(tmp) / bag.stem
+                run_build(bag, out, {"topics": {"scan": "/training_scan", "odometry": "none"},
+                                     "registration": {"mode": "icp"}})
+                legs.append({"bag": bag.name, **score_legs(bag, out)})
+
+    print(f"semmap build benchmark, {date.today().isoformat()}")
+    print(f"machine: {machine()}\n")
+    print("| scenario | trajectory | ATE RMSE (m) | occupied F1 | ghost rate | semi-static precision | "
+          "semi-static recall | scans/s | real-time factor | peak RSS (MB) |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    names = {"odometry": "wheel odometry", "icp": "KISS-ICP", "fused": "EKF fusion"}
+    for r in rows:
+        print(f"| {r['scenario']} | {names[r['mode']]} | {r['ate_rmse_m']:.3f} | {r['f1']:.3f} | "
+              f"{100 * r['ghost_rate']:.2f} % | {r['semi_precision']:.3f} | {r['semi_recall']:.3f} | "
+              f"{r['scans_per_s']:.0f} | {r['real_time_factor']:.0f}x | {r['peak_rss_mb']:.0f} |")
+    if legs:
+        print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP):\n")
+        print("| bag | labelled leg positions | leg cells ever hit | leg cells occupied in the cleaned map |")
+        print("|---|---:|---:|---:|")
+        for r in legs:
+            print(f"| {r['bag']} | {r['leg_positions']} | {100 * r['leg_cells_ever_hit']:.1f} % | "
+                  f"{100 * r['leg_cells_occupied_in_map']:.2f} % |")
+    if args.json:
+        args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
+                                         "simulated": rows, "leg_tracker": legs}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

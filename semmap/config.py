@@ -315,6 +315,8 @@ class BuildConfig(_Model):
     registration: RegistrationConfig = RegistrationConfig()
     grid: GridConfig = GridConfig()
     cleaning: CleaningConfig = CleaningConfig()
+    workers: bool = Field(True, description="decode and segment images, and fuse the grid, in worker processes "
+                                            "(false: everything in one process, for debugging)")
 
 
 # ---------------------------------------------------------------------------------------

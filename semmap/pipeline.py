@@ -2,11 +2,16 @@
 
 Data flows one way, one scan at a time, so memory does not grow with the tour:
 
-    bag ──► scans, odometry, camera frames (streamed in bag order)
-        ──► painter (deskew, sync to the image, project, label → mobility)
-        ──► registrar (KISS-ICP + wheel odometry in an EKF)
-        ──► semantic grid (log-odds + class evidence)
-        ──► cleaning ──► map folder (written atomically)
+    bag ─► scans + odometry ───────────────┐   (this process)
+    bag ─► camera frames ─► segmenter ─────┤   (frame worker process)
+                                           ▼
+           painter (deskew, sync to the image, project, label → mobility)   (this process)
+                                           ▼
+           registrar (KISS-ICP + wheel odometry in an EKF)   (registration worker)
+                                           ▼
+           semantic grid (log-odds + class evidence)         (fusion worker)
+                                           ▼
+           cleaning ─► map folder (written atomically)
 """
 
 from __future__ import annotations
@@ -24,15 +29,16 @@ from numpy.typing import NDArray
 
 from .classes import load_class_table
 from .config import BuildConfig
-from .errors import BagError, SemmapError
+from .errors import BagError
 from .io.atomic import atomic_dir
 from .io.bag import ReadStats, iter_messages, message_count
-from .io.messages import compressed_image_from_msg, image_from_msg, odometry_from_msg, scan_from_msg
-from .io.tour import COMPRESSED_T, Tour, load_build_config, open_tour
+from .io.messages import odometry_from_msg, scan_from_msg
+from .io.tour import Tour, load_build_config, open_tour
 from .paint.motion import OdomTrack
 from .paint.painter import Painter
-from .records import Image, PaintedScan, Scan, Segmentation
-from .segment.base import Segmenter, create_segmenter
+from .records import PaintedScan, Scan, Segmentation
+from .segment.base import backend_consumes
+from .workers import FrameWorker, InProcessFrames, InProcessMapper, MapperResult, MapperWorkers
 
 __all__ = ["build", "BuildResult"]
 
@@ -51,18 +57,10 @@ class BuildResult:
 
 
 @dataclass
-class _Frame:
-    stamp_ns: int
-    image: Image
-    seg: Segmentation | None = None
-
-
-@dataclass
 class _Timers:
     read: float = 0.0
     paint: float = 0.0
-    register: float = 0.0
-    fuse: float = 0.0
+    hand_over: float = 0.0  # giving scans to the mapping stages, and waiting for them at the end
     clean: float = 0.0
     write: float = 0.0
 
@@ -73,38 +71,35 @@ class _Timers:
 @dataclass
 class _Trace:
     stamps: list[int] = field(default_factory=list)
-    poses: list[NDArray[np.float64]] = field(default_factory=list)
     odom: list[NDArray[np.float64] | None] = field(default_factory=list)
+    poses: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # filled at the end
 
 
 class _Pipeline:
     """The streaming core: buffers just enough to pair scans with images and odometry."""
 
-    def __init__(self, tour: Tour, cfg: BuildConfig, segmenter: Segmenter | None, class_names: tuple[str, ...]):
-        from .grid import SemanticGrid
-        from .register import Registrar
-
+    def __init__(self, tour: Tour, cfg: BuildConfig, class_names: tuple[str, ...], frames: Any, mapper: Any):
         self.tour = tour
         self.cfg = cfg
-        self.segmenter = segmenter
         self.class_names = class_names
+        self.frame_source = frames
+        self.mapper = mapper
+        self.result: MapperResult | None = None
         table = load_class_table(cfg.segmentation.classes_file)
         self.painter = Painter(tour.T_base_lidar, tour.calibration, class_names, table, cfg.paint, cfg.sync,
                                cfg.grid.max_free_range)
-        self.registrar = Registrar(cfg.registration)
-        self.grid = SemanticGrid(cfg.grid, class_names)
         self.odom = OdomTrack(cfg.sync.max_odom_gap) if tour.topics.odometry else None
-        self.frames: deque[_Frame] = deque()
+        self.segs: deque[Segmentation] = deque()
+        self.frames_done = frames is None
         self.pending: deque[tuple[int, Scan]] = deque()  # (bag time, scan)
         self.max_offset_ns = int(cfg.sync.max_image_offset * 1e9)
         self.trace = _Trace()
         self.timers = _Timers()
-        self.counts = {"scans": 0, "scans_without_image": 0, "scans_without_odometry": 0, "frames": 0,
-                       "odometry": 0, "bad_scans": 0, "bad_frames": 0, "scans_out_of_order": 0}
+        self.counts = {"scans": 0, "scans_without_image": 0, "scans_without_odometry": 0, "odometry": 0,
+                       "bad_scans": 0, "scans_out_of_order": 0}
         self._last_scan_ns: int | None = None
         self.mobility_hits = np.zeros(4, np.int64)
         self.class_hits = np.zeros(len(class_names), np.int64)
-        self.last_frame_ns: int | None = None
 
     # -- inputs -----------------------------------------------------------------------------
     def on_odometry(self, msg: Any) -> None:
@@ -112,17 +107,6 @@ class _Pipeline:
         stamp, _, _, pose = odometry_from_msg(msg)
         self.odom.add(stamp, pose)
         self.counts["odometry"] += 1
-
-    def on_frame(self, topic: str, msgtype: str, msg: Any) -> None:
-        try:
-            img = compressed_image_from_msg(msg, topic) if msgtype == COMPRESSED_T else image_from_msg(msg, topic)
-        except SemmapError as exc:
-            self.counts["bad_frames"] += 1
-            log.debug("skipped frame: %s", exc)
-            return
-        self.frames.append(_Frame(img.stamp_ns, img))
-        self.last_frame_ns = max(self.last_frame_ns or img.stamp_ns, img.stamp_ns)
-        self.counts["frames"] += 1
 
     def on_scan(self, t_bag: int, msg: Any) -> None:
         scan = scan_from_msg(msg)
@@ -133,13 +117,14 @@ class _Pipeline:
         self.pending.append((t_bag, scan))
 
     # -- processing --------------------------------------------------------------------------
+    @staticmethod
+    def _end_ns(scan: Scan) -> int:
+        return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
+
     def _ready(self, t_bag_now: int, scan_bag: int, scan: Scan) -> bool:
-        end = scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
-        odom_ok = self.odom is None or (self.odom.last_ns is not None and self.odom.last_ns >= end)
-        frames_ok = self.tour.topics.frames is None or (
-            self.last_frame_ns is not None and self.last_frame_ns >= end + self.max_offset_ns)
+        odom_ok = self.odom is None or (self.odom.last_ns is not None and self.odom.last_ns >= self._end_ns(scan))
         stalled = t_bag_now - scan_bag > 2_000_000_000 or len(self.pending) > 64
-        return (odom_ok and frames_ok) or stalled
+        return odom_ok or stalled
 
     def process_ready(self, t_bag_now: int) -> None:
         while self.pending and self._ready(t_bag_now, *self.pending[0]):
@@ -150,15 +135,20 @@ class _Pipeline:
             self._process(self.pending.popleft()[1])
 
     def _segmentation(self, scan: Scan) -> Segmentation | None:
-        if not self.frames or self.segmenter is None:
+        """The segmentation nearest the scan's middle, pulling frames only as far as needed."""
+        mid = scan.stamp_ns + (self._end_ns(scan) - scan.stamp_ns) // 2
+        while not self.frames_done and (not self.segs or self.segs[-1].stamp_ns < mid + self.max_offset_ns):
+            seg = self.frame_source.next()
+            if seg is None:
+                self.frames_done = True
+            else:
+                self.segs.append(seg)
+        while len(self.segs) > 1 and self.segs[0].stamp_ns < mid - self.max_offset_ns - 500_000_000:
+            self.segs.popleft()
+        if not self.segs:
             return None
-        mid = scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size / 2)
-        best = min(self.frames, key=lambda f: abs(f.stamp_ns - mid))
-        if abs(best.stamp_ns - mid) > self.max_offset_ns:
-            return None
-        if best.seg is None:
-            best.seg = self.segmenter.segment(best.image)
-        return best.seg
+        best = min(self.segs, key=lambda s: abs(s.stamp_ns - mid))
+        return best if abs(best.stamp_ns - mid) <= self.max_offset_ns else None
 
     def _process(self, scan: Scan) -> None:
         if self._last_scan_ns is not None and scan.stamp_ns <= self._last_scan_ns:
@@ -168,15 +158,11 @@ class _Pipeline:
         t0 = time.perf_counter()
         seg = self._segmentation(scan)
         painted = self.painter.paint(scan, self.odom, seg)
-        t1 = time.perf_counter()
         odom_pose = self.odom.interpolate(painted.stamp_ns) if self.odom is not None else None
-        pose = self.registrar.register(painted, odom_pose)
-        t2 = time.perf_counter()
-        self.grid.integrate(pose, painted)
-        t3 = time.perf_counter()
+        t1 = time.perf_counter()
+        self.mapper.push(painted, odom_pose)
         self.timers.paint += t1 - t0
-        self.timers.register += t2 - t1
-        self.timers.fuse += t3 - t2
+        self.timers.hand_over += time.perf_counter() - t1  # the mapper times its own work
         self.counts["scans"] += 1
         if seg is None:
             self.counts["scans_without_image"] += 1
@@ -184,14 +170,9 @@ class _Pipeline:
             self.counts["scans_without_odometry"] += 1
         self._tally(painted)
         self.trace.stamps.append(painted.stamp_ns)
-        self.trace.poses.append(np.asarray(pose, dtype=np.float64))
         self.trace.odom.append(odom_pose)
-        # forget what no future scan needs
-        keep_from = scan.stamp_ns - 1_000_000_000
         if self.odom is not None:
-            self.odom.trim(keep_from)
-        while self.frames and self.frames[0].stamp_ns < scan.stamp_ns - self.max_offset_ns - 500_000_000:
-            self.frames.popleft()
+            self.odom.trim(scan.stamp_ns - 1_000_000_000)  # forget what no future scan needs
 
     def _tally(self, painted: PaintedScan) -> None:
         hit = painted.hit
@@ -200,6 +181,10 @@ class _Pipeline:
         cls = cls[cls >= 0]
         if cls.size:
             self.class_hits += np.bincount(cls, minlength=len(self.class_names))[: len(self.class_names)]
+
+    @property
+    def frame_counts(self) -> dict[str, int]:
+        return dict(self.frame_source.counts) if self.frame_source is not None else {"frames": 0, "bad_frames": 0}
 
 
 def build(
@@ -214,59 +199,78 @@ def build(
     """Build the cleaned semantic map of a recorded tour into the folder ``out``.
 
     ``tour`` is a bag or a folder holding one; ``config`` a YAML file or a
-    :class:`~semmap.config.BuildConfig`; ``calibration`` overrides the calibration file.
+    :class:`~semmap.config.BuildConfig`; ``calibration`` overrides the calibration file;
+    ``overrides`` is a dict merged over the config (as if written in its YAML).
     Nothing appears at ``out`` until the whole map folder is written.
     """
     t_start = time.perf_counter()
     if isinstance(config, BuildConfig):
         cfg, cfg_dir = config, Path.cwd()
+        if overrides:
+            cfg, _ = load_build_config(None, {**config.model_dump(exclude_unset=True), **overrides})
     else:
         cfg, cfg_dir = load_build_config(config, overrides)
     tour_path = Path(tour)
     if not tour_path.exists():
         raise BagError(f"{tour_path}: no such file or directory")
 
-    segmenter: Segmenter | None = create_segmenter(cfg.segmentation)
+    consumes = backend_consumes(cfg.segmentation)
+    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=consumes)
+    # a simulated tour says which class list its label images use
+    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
+        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
+        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    frames: Any = None
+    class_names: tuple[str, ...] = ()
+    if tinfo.topics.frames is None:
+        log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
+    else:
+        from .segment.base import create_segmenter
+
+        probe = create_segmenter(cfg.segmentation)  # class names (backends load models lazily)
+        class_names = probe.names
+        probe.close()
+    mapper: Any = None
     try:
-        tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=segmenter.consumes)
-        # a simulated tour says which class list its label images use
-        if (tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set):
-            seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
-            cfg = cfg.model_copy(update={"segmentation": seg_cfg})
-            segmenter.close()
-            segmenter = create_segmenter(cfg.segmentation)
-        if tinfo.topics.frames is None:
-            segmenter.close()
-            segmenter = None
-            log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
-        class_names = segmenter.names if segmenter is not None else ()
-        pipe = _Pipeline(tinfo, cfg, segmenter, class_names)
-        topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry, tinfo.topics.frames) if t]
+        msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
+        if cfg.workers:
+            if tinfo.topics.frames is not None:
+                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+            mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
+        else:
+            if tinfo.topics.frames is not None:
+                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+            mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
+        pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
+        topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
         stats = ReadStats()
         n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan)
-        t_read = time.perf_counter()
+        t_loop = time.perf_counter()
         for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats):
             if topic == tinfo.topics.scan:
                 pipe.on_scan(t_bag, msg)
-            elif topic == tinfo.topics.odometry:
-                pipe.on_odometry(msg)
+                if progress is not None and stats.read.get(topic, 0) % 50 == 0:
+                    progress(stats.read.get(topic, 0), n_scan_msgs)
             else:
-                pipe.on_frame(topic, tinfo.types[topic], msg)
+                pipe.on_odometry(msg)
             pipe.process_ready(t_bag)
-            if progress is not None and topic == tinfo.topics.scan and stats.read.get(topic, 0) % 50 == 0:
-                progress(stats.read.get(topic, 0), n_scan_msgs)
         pipe.flush()
+        t_wait = time.perf_counter()
+        pipe.result = mapper.finish()
+        pipe.trace.poses = pipe.result.poses
+        pipe.timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
+        loop_s = time.perf_counter() - t_loop
+        pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.hand_over)
         if progress is not None:
             progress(n_scan_msgs, n_scan_msgs)
-        loop_s = time.perf_counter() - t_read
-        pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.register - pipe.timers.fuse)
         if pipe.counts["scans"] == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
         from .mapfolder.writer import write_map_folder
 
         with atomic_dir(out, force) as tmp:
-            summary = write_map_folder(tmp, tinfo, cfg, pipe, stats, t_start)
+            summary = write_map_folder(tmp, tinfo, cfg, pipe, pipe.result.layers, stats, loop_s, t_start)
     finally:
-        if segmenter is not None:
-            segmenter.close()
+        for part in (frames, mapper):
+            if part is not None:
+                part.close()
     return BuildResult(Path(out), summary, time.perf_counter() - t_start)

@@ -153,3 +153,18 @@ def test_odometry_track_interpolates_and_respects_gaps():
     assert odom.out_of_order == 1
     assert odom.interpolate(1_000_000_000) is None  # inside a 1.9 s gap
     assert odom.interpolate(-1) is None
+
+
+def test_fast_pinhole_projection_agrees_with_opencv():
+    ps, labels = _world()
+    lcfg, ccfg, t_base_lidar, calib = _rig()
+    lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))
+    sweep = lidar.cast(np.zeros(3), ps)
+    frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
+    scan = _scan(lidar, sweep.ranges, 0, lcfg)
+    seg = Segmentation(0, frame.label, COCO)
+    fast = _painter(t_base_lidar, calib).paint(scan, None, seg)
+    tiny = Calibration(CameraIntrinsics(640, 480, calib.intrinsics.K, [0, 0, 0, 0, 1e-12]), calib.T_cam_lidar)
+    slow = _painter(t_base_lidar, tiny).paint(scan, None, seg)
+    assert not _painter(t_base_lidar, tiny)._pinhole_no_distortion
+    assert np.array_equal(fast.mobility, slow.mobility) and np.array_equal(fast.class_id, slow.class_id)

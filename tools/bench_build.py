@@ -57,12 +57,11 @@ def run_build(tour: Path, out: Path, overrides: dict, config: str = "-") -> dict
 def score_simulated(tour: Path, mapdir: Path) -> dict:
     import numpy as np
 
-    from semmap.geometry import se2_apply, se2_compose, se3_from_xyz_rpy, se3_to_se2
     from semmap.grid.metrics import ghost_rate, observable_cells, occupancy_f1, semi_static_scores
     from semmap.io.mapserver import read_map
     from semmap.io.tum import read_tum
-    from semmap.io.yamlio import read_yaml
     from semmap.register.metrics import ate_errors
+    from semmap.sim.groundtruth import true_beam_end_points
 
     gt = tour / "ground_truth"
     est_t, est_p = read_tum(mapdir / "trajectory.tum")
@@ -74,17 +73,7 @@ def score_simulated(tour: Path, mapdir: Path) -> dict:
     truth_semi = read_map(gt / "semi_static.yaml")
     swept = read_map(gt / "people_swept.yaml")
     # observable truth: cells some true beam ended on (people excluded)
-    beams = np.load(gt / "beams.npz")
-    cfg = read_yaml(tour / "config.yaml")
-    mount = cfg["lidar"]["mount"]
-    lidar2 = se3_to_se2(se3_from_xyz_rpy(mount["xyz"], mount["rpy"]))
-    r, a, mob = beams["range"], beams["angles"], beams["mobility"]
-    ends = []
-    for k in range(r.shape[0]):
-        ok = np.isfinite(r[k]) & (mob[k] != 3)
-        pts = np.column_stack([r[k, ok] * np.cos(a[ok]), r[k, ok] * np.sin(a[ok])])
-        ends.append(se2_apply(se2_compose(beams["base_pose"][k], lidar2), pts))
-    ends = np.concatenate(ends)
+    ends = true_beam_end_points(tour)
     observable = observable_cells(truth.occupied, truth.spec, ends)
     observable_semi = observable & truth_semi.occupied
     f1 = occupancy_f1(occ.occupied, occ.spec, truth.occupied, truth.spec, observable, 1, t_gt_map)

@@ -167,7 +167,10 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         "| stage | seconds |",
         "|---|---:|",
-        *[f"| {k} | {v:.2f} |" for k, v in t.items()],
+        *[f"| {k} | {v:.2f} |" for k, v in t.items() if isinstance(v, float)],
+        "",
+        "`loop` is the wall time of the streaming loop; with worker processes (`workers: "
+        f"{str(t['workers']).lower()}`) fusion and segmentation run beside it (their busy time is listed).",
         "",
         f"Throughput: {th['scans_per_s']} scans/s through read, paint, register and fuse "
         f"({th['real_time_factor']}× real time); peak memory {s['peak_rss_mb']:.0f} MB.",

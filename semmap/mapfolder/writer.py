@@ -67,13 +67,15 @@ def _crop_to_observed(layers: GridLayers, cleaned: CleanedMap, margin_m: float) 
     return layers, cleaned
 
 
-def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, stats: ReadStats,
-                     t_start: float) -> dict[str, Any]:
-    """Clean the fused grid and write every file of the map folder into ``out``."""
+def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, layers: GridLayers,
+                     stats: ReadStats, loop_s: float, t_start: float) -> dict[str, Any]:
+    """Clean the fused grid and write every file of the map folder into ``out``.
+
+    ``loop_s`` is the wall time of the streaming loop (read, paint, register, fuse).
+    """
     from ..grid import clean
 
     t0 = time.perf_counter()
-    layers = pipe.grid.layers()
     cleaned = clean(layers, cfg.cleaning, pipe.class_names)
     layers, cleaned = _crop_to_observed(layers, cleaned, margin_m=1.0)
     pipe.timers.clean = time.perf_counter() - t0
@@ -116,7 +118,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, s
     pipe.timers.write = time.perf_counter() - t1
     elapsed = time.perf_counter() - t_start
     n = pipe.counts["scans"]
-    loop = pipe.timers.read + pipe.timers.paint + pipe.timers.register + pipe.timers.fuse
+    loop = loop_s
     span_s = (stamps[-1] - stamps[0]) * 1e-9 if n > 1 else 0.0
     by_class: dict[str, int] = {}
     for o in cleaned.objects:
@@ -138,7 +140,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, s
         },
         "messages": {"read": stats.read, "skipped": stats.skipped,
                      "odometry_out_of_order": pipe.odom.out_of_order if pipe.odom is not None else 0},
-        "counts": dict(pipe.counts),
+        "counts": {**pipe.counts, **{k: v for k, v in pipe.frame_counts.items() if k != "segment_ms"}},
         "painting": {
             "class_list": cfg.segmentation.class_list if pipe.class_names else None,
             "backend": cfg.segmentation.backend if pipe.class_names else None,
@@ -148,7 +150,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, s
                                                           pipe.mobility_hits)},
             "hits_by_class": {pipe.class_names[i]: int(v) for i, v in enumerate(pipe.class_hits) if v > 0},
         },
-        "registration": {"mode": cfg.registration.mode, **pipe.registrar.stats},
+        "registration": {"mode": cfg.registration.mode, **pipe.result.registration},
         "map": {
             "resolution": spec.resolution,
             "origin": [spec.origin_x, spec.origin_y, 0.0],
@@ -161,7 +163,12 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, s
             "semi_static_objects": len(objects),
             "semi_static_objects_by_class": by_class,
         },
-        "timings_s": {**pipe.timers.as_dict(), "total": round(elapsed, 3)},
+        "timings_s": {**pipe.timers.as_dict(),
+                      "register_busy": round(pipe.result.register_busy_s, 3),
+                      "fuse_busy": round(pipe.result.fuse_busy_s, 3),
+                      "loop": round(loop, 3), "total": round(elapsed, 3),
+                      "segmentation_busy": round(pipe.frame_counts.get("segment_ms", 0) / 1000.0, 3),
+                      "workers": cfg.workers},
         "throughput": {
             "scans_per_s": round(n / loop, 1) if loop > 0 else None,
             "scans_per_s_end_to_end": round(n / elapsed, 1) if elapsed > 0 else None,

@@ -7,8 +7,6 @@ import bisect
 import numpy as np
 from numpy.typing import NDArray
 
-from ..geometry import wrap_angle
-
 __all__ = ["OdomTrack"]
 
 
@@ -23,6 +21,7 @@ class OdomTrack:
         self.max_gap_ns = int(max_gap_s * 1e9)
         self._t: list[int] = []
         self._p: list[NDArray[np.float64]] = []
+        self._arrays: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None  # cache for interpolate
         self.out_of_order = 0
 
     def __len__(self) -> int:
@@ -38,6 +37,7 @@ class OdomTrack:
             return
         self._t.append(int(stamp_ns))
         self._p.append(np.asarray(pose, dtype=np.float64))
+        self._arrays = None
 
     def trim(self, before_ns: int) -> None:
         """Forget samples older than ``before_ns`` (keeping one before it for interpolation)."""
@@ -45,6 +45,7 @@ class OdomTrack:
         if k > 0:
             del self._t[:k]
             del self._p[:k]
+            self._arrays = None
 
     def covers(self, t_ns: int) -> bool:
         return bool(self._t) and self._t[0] <= t_ns <= self._t[-1]
@@ -55,16 +56,20 @@ class OdomTrack:
         if len(self._t) < 2:
             return None
         tt = np.atleast_1d(np.asarray(t_ns, dtype=np.int64))
-        t = np.asarray(self._t, dtype=np.int64)
+        if self._arrays is None:
+            self._arrays = (np.asarray(self._t, dtype=np.int64), np.asarray(self._p))
+        t, p = self._arrays
         if tt.min() < t[0] or tt.max() > t[-1]:
             return None
         k = np.clip(np.searchsorted(t, tt, side="right") - 1, 0, len(t) - 2)
         gap = t[k + 1] - t[k]
         if np.any(gap > self.max_gap_ns):
             return None
-        p = np.asarray(self._p)
         f = ((tt - t[k]) / np.maximum(gap, 1)).astype(np.float64)[:, None]
         a, b = p[k], p[k + 1]
         out = a + f * (b - a)
-        out[:, 2] = wrap_angle(a[:, 2] + f[:, 0] * wrap_angle(b[:, 2] - a[:, 2]))
+        d = b[:, 2] - a[:, 2]
+        d = (d + np.pi) % (2 * np.pi) - np.pi  # shortest arc (the ±π tie does not matter here)
+        yaw = a[:, 2] + f[:, 0] * d
+        out[:, 2] = np.pi - (np.pi - yaw) % (2 * np.pi)  # wrap to (-π, π]
         return out[0] if np.ndim(t_ns) == 0 else out

@@ -92,6 +92,8 @@ class Painter:
         if calibration is not None:
             self.T_cam_base = calibration.T_cam_lidar @ se3_inverse(self.T_base_lidar)
             self._bounds = _normalised_bounds(calibration)
+            self._pinhole_no_distortion = calibration.intrinsics.model == "pinhole" and not np.any(
+                calibration.intrinsics.D)
         self.stats = PaintStats()
 
     def _beams(self, scan: Scan) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
@@ -120,10 +122,18 @@ class Painter:
 
         xy = pts_base[:, :2].copy()
         origins = np.repeat(origin[None, :], n, axis=0)
-        if self.sync_cfg.deskew and dt_ns and odom is not None:
-            poses = odom.interpolate(np.concatenate([beam_t, [t_ref]]))
+        if self.sync_cfg.deskew and dt_ns and odom is not None and n > 2:
+            poses = odom.interpolate(np.array([beam_t[0], t_ref, beam_t[-1]], dtype=np.int64))
             if poses is not None:
-                rel = se2_between(poses[-1], poses[:-1])  # beam-time base pose seen from the reference
+                # the base pose at each beam's time, seen from the reference (middle) beam: the
+                # sweep lasts tens of ms, so the motion is interpolated linearly from its two ends
+                rel_first = se2_between(poses[1], poses[0])
+                rel_last = se2_between(poses[1], poses[2])
+                k = np.arange(n, dtype=np.float64)
+                mid = n // 2
+                w_first = np.clip((mid - k) / mid, 0.0, 1.0)[:, None]
+                w_last = np.clip((k - mid) / (n - 1 - mid), 0.0, 1.0)[:, None]
+                rel = w_first * rel_first + w_last * rel_last
                 c, s = np.cos(rel[:, 2]), np.sin(rel[:, 2])
                 xy = np.column_stack([rel[:, 0] + c * xy[:, 0] - s * xy[:, 1],
                                       rel[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
@@ -172,8 +182,15 @@ class Painter:
         with np.errstate(divide="ignore", invalid="ignore"):
             xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
         front = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1) & (yn >= y0) & (yn <= y1)
-        uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
-                                    min_depth=self.paint_cfg.min_depth)
+        if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
+            k = intr.K
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = np.column_stack([k[0, 0] * xn + k[0, 1] * yn + k[0, 2], k[1, 1] * yn + k[1, 2]])
+            inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < intr.width - 0.5) & (uv[:, 1] >= -0.5) & (
+                uv[:, 1] < intr.height - 0.5)
+        else:
+            uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
+                                        min_depth=self.paint_cfg.min_depth)
         ok = inside & front
         if not ok.any():
             return

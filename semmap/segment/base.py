@@ -47,22 +47,37 @@ SegmenterFactory = Callable[[SegmentationConfig], Segmenter]
 
 #: backend name → factory
 SEGMENTERS: dict[str, SegmenterFactory] = {}
+#: backend name → the image stream it consumes ("rgb" or "labels"), known without loading a model
+CONSUMES: dict[str, str] = {}
 
 
-def register(name: str) -> Callable[[SegmenterFactory], SegmenterFactory]:
+def register(name: str, consumes: Literal["rgb", "labels"] = "rgb") -> Callable[[SegmenterFactory], SegmenterFactory]:
     def deco(factory: SegmenterFactory) -> SegmenterFactory:
         SEGMENTERS[name] = factory
+        CONSUMES[name] = consumes
         return factory
 
     return deco
 
 
-def create_segmenter(cfg: SegmentationConfig) -> Segmenter:
-    """Instantiate the configured backend (importing its module registers it)."""
+def _load_backends() -> None:
     from . import topic  # noqa: F401 - registers the built-in backends
 
-    factory = SEGMENTERS.get(cfg.backend)
-    if factory is None:
+
+def _check(cfg: SegmentationConfig) -> None:
+    _load_backends()
+    if cfg.backend not in SEGMENTERS:
         known = ", ".join(sorted(SEGMENTERS))
         raise ConfigError(f"segmentation.backend: unknown backend {cfg.backend!r} (available: {known})")
-    return factory(cfg)
+
+
+def backend_consumes(cfg: SegmentationConfig) -> str:
+    """Which image stream the configured backend needs, without instantiating it."""
+    _check(cfg)
+    return CONSUMES[cfg.backend]
+
+
+def create_segmenter(cfg: SegmentationConfig) -> Segmenter:
+    """Instantiate the configured backend (importing its module registers it)."""
+    _check(cfg)
+    return SEGMENTERS[cfg.backend](cfg)

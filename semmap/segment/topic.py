@@ -39,6 +39,6 @@ class LabelTopicSegmenter:
         pass
 
 
-@register("topic")
+@register("topic", consumes="labels")
 def _make(cfg: SegmentationConfig) -> LabelTopicSegmenter:
     return LabelTopicSegmenter(cfg)

@@ -313,6 +313,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
         gt / "beams.npz",
         stamp_ns=t0 + np.round(scan_times * ns).astype(np.int64),
         angles=lidar.angles,
+        time_offset_s=lidar.beam_dt,
         range=gt_range,
         instance=np.where(gt_row >= 0, row_instance[np.maximum(gt_row, 0)], 0).astype(np.int32),
         class_index=np.where(gt_row >= 0, row_class[np.maximum(gt_row, 0)], -1).astype(np.int16),

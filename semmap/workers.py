@@ -1,0 +1,311 @@
+"""Worker processes around the mapping core.
+
+* **Frames** (:class:`FrameWorker`): a process that reads the camera topic from the bag,
+  decodes the images and runs the segmenter, handing segmentations back through a
+  bounded queue. Image decoding and model inference never share a process with mapping
+  (the research separated them after segfaults in continuous CUDA runs), and a model
+  that is slower than mapping no longer adds its time to it.
+* **Mapping** (:class:`MapperWorkers`): two chained processes, registration then fusion;
+  painted scans stream in, the trajectory and the grid layers come back at the end. With
+  painting in the calling process the three stages share the machine's cores.
+
+Both have in-process twins (:class:`InProcessFrames`, :class:`InProcessMapper`) with the
+same methods, used when ``workers: false`` (debugging) and by tests. Errors in a worker
+come back as :class:`~semmap.errors.SemmapError` with the worker's one-line message.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import queue
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import GridConfig, RegistrationConfig, SegmentationConfig
+from .errors import SemmapError
+from .records import Segmentation
+
+__all__ = ["InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers", "MapperResult"]
+
+log = logging.getLogger(__name__)
+
+_POLL_S = 0.2
+_COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
+
+
+def _decoded_segmentations(bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+                           counts: dict[str, int]) -> Iterator[Segmentation]:
+    from .io.bag import iter_messages
+    from .io.messages import compressed_image_from_msg, image_from_msg
+    from .segment.base import create_segmenter
+
+    segmenter = create_segmenter(seg_cfg)
+    try:
+        for _, _, msg in iter_messages(bag, [topic]):
+            t0 = time.perf_counter()
+            try:
+                img = compressed_image_from_msg(msg, topic) if msgtype == _COMPRESSED_T else image_from_msg(msg, topic)
+                seg = segmenter.segment(img)
+            except SemmapError as exc:  # a bad frame is skipped and counted
+                counts["bad_frames"] += 1
+                log.debug("skipped frame on %s: %s", topic, exc)
+                continue
+            counts["frames"] += 1
+            counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
+            yield seg
+    finally:
+        segmenter.close()
+
+
+class InProcessFrames:
+    """Segmentations of a camera topic, decoded in this process, one at a time."""
+
+    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
+        self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self._it = _decoded_segmentations(bag, topic, msgtype, seg_cfg, self.counts)
+
+    def next(self) -> Segmentation | None:
+        return next(self._it, None)
+
+    def close(self) -> None:
+        self._it.close()
+
+
+def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any], out: Any) -> None:
+    counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+    try:
+        cfg = SegmentationConfig.model_validate(seg_cfg)
+        for seg in _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts):
+            out.put(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names, seg.confidence))
+        out.put(("done", counts))
+    except SemmapError as exc:
+        out.put(("error", type(exc).__name__, str(exc)))
+    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
+        out.put(("error", type(exc).__name__, f"frame worker failed: {type(exc).__name__}: {exc}"))
+
+
+def _raise(kind: str, message: str) -> None:
+    from . import errors
+
+    cls = getattr(errors, kind, None)
+    if isinstance(cls, type) and issubclass(cls, SemmapError):
+        raise cls(message)
+    raise SemmapError(message)
+
+
+class FrameWorker:
+    """Segmentations of a camera topic from a worker process, through a bounded queue."""
+
+    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+                 queue_size: int = 8) -> None:
+        ctx = mp.get_context("spawn")
+        self._queue = ctx.Queue(maxsize=queue_size)
+        self._proc = ctx.Process(target=_frame_worker_main, name="semmap-frames", daemon=True,
+                                 args=(str(bag), topic, msgtype, seg_cfg.model_dump(mode="json"), self._queue))
+        self._proc.start()
+        self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self._done = False
+
+    def next(self) -> Segmentation | None:
+        while not self._done:
+            try:
+                item = self._queue.get(timeout=_POLL_S)
+            except queue.Empty:
+                if not self._proc.is_alive():
+                    self._done = True
+                    raise SemmapError(
+                        f"the frame worker stopped unexpectedly (exit code {self._proc.exitcode})") from None
+                continue
+            if item[0] == "frame":
+                _, stamp, label, names, conf = item
+                return Segmentation(stamp, label, names, conf)
+            if item[0] == "done":
+                self.counts = item[1]
+                self._done = True
+                return None
+            self._done = True
+            _raise(item[1], item[2])
+        return None
+
+    def close(self) -> None:
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._proc.join(timeout=5)
+        self._queue.close()
+
+
+# ---------------------------------------------------------------------------------------
+# Mapping: registration, then fusion
+
+
+@dataclass(frozen=True)
+class MapperResult:
+    """What the mapping stages return at the end of a tour."""
+
+    poses: NDArray[np.float64]  # (N, 3) base_link in the map frame, one per pushed scan
+    layers: Any  # GridLayers
+    registration: dict[str, Any]  # Registrar.stats
+    register_busy_s: float
+    fuse_busy_s: float
+
+
+class InProcessMapper:
+    """Registration and fusion in this process."""
+
+    def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...]) -> None:
+        from .grid import SemanticGrid
+        from .register import Registrar
+
+        self._registrar = Registrar(reg_cfg)
+        self._grid = SemanticGrid(grid_cfg, class_names)
+        self._poses: list[NDArray[np.float64]] = []
+        self._busy = [0.0, 0.0]
+
+    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+        t0 = time.perf_counter()
+        pose = self._registrar.register(painted, odom_pose)
+        t1 = time.perf_counter()
+        self._grid.integrate(pose, painted)
+        self._busy[0] += t1 - t0
+        self._busy[1] += time.perf_counter() - t1
+        self._poses.append(pose)
+
+    def finish(self) -> MapperResult:
+        return MapperResult(np.asarray(self._poses, dtype=np.float64).reshape(-1, 3), self._grid.layers(),
+                            self._registrar.stats, self._busy[0], self._busy[1])
+
+    def close(self) -> None:
+        pass
+
+
+def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any, outbox: Any) -> None:
+    try:
+        from .register import Registrar
+
+        registrar = Registrar(RegistrationConfig.model_validate(cfg))
+        poses: list[NDArray[np.float64]] = []
+        busy = 0.0
+        while True:
+            batch = inbox.get()
+            if batch is None:
+                break
+            t0 = time.perf_counter()
+            out = []
+            for painted, odom_pose in batch:
+                pose = registrar.register(painted, odom_pose)
+                poses.append(pose)
+                out.append((pose, painted))
+            busy += time.perf_counter() - t0
+            fusion_inbox.put(out)
+        fusion_inbox.put(None)
+        outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy))
+    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
+        fusion_inbox.put(None)
+        outbox.put(("error", type(exc).__name__, f"registration worker failed: {type(exc).__name__}: {exc}"))
+
+
+def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox: Any, outbox: Any) -> None:
+    try:
+        from .grid import SemanticGrid
+
+        grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
+        busy = 0.0
+        while True:
+            batch = inbox.get()
+            if batch is None:
+                break
+            t0 = time.perf_counter()
+            for pose, painted in batch:
+                grid.integrate(pose, painted)
+            busy += time.perf_counter() - t0
+        outbox.put(("layers", grid.layers(), busy))
+    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
+        outbox.put(("error", type(exc).__name__, f"fusion worker failed: {type(exc).__name__}: {exc}"))
+
+
+class MapperWorkers:
+    """Registration and fusion in two chained worker processes; scans travel in small batches.
+
+    Painting stays in the calling process, registration runs one scan behind it and fusion
+    one batch behind registration, so the three share the machine's cores.
+    """
+
+    def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
+                 batch: int = 8, queue_size: int = 16) -> None:
+        ctx = mp.get_context("spawn")
+        self._to_reg = ctx.Queue(maxsize=queue_size)
+        to_fuse = ctx.Queue(maxsize=queue_size)
+        self._from_reg = ctx.Queue(maxsize=1)
+        self._from_fuse = ctx.Queue(maxsize=1)
+        self._procs = [
+            ctx.Process(target=_registration_worker_main, name="semmap-register", daemon=True,
+                        args=(reg_cfg.model_dump(mode="json"), self._to_reg, to_fuse, self._from_reg)),
+            ctx.Process(target=_fusion_worker_main, name="semmap-fusion", daemon=True,
+                        args=(grid_cfg.model_dump(mode="json"), tuple(class_names), to_fuse, self._from_fuse)),
+        ]
+        self._queues = [self._to_reg, to_fuse, self._from_reg, self._from_fuse]
+        for p in self._procs:
+            p.start()
+        self._batch: list[tuple[Any, NDArray[np.float64] | None]] = []
+        self._batch_size = batch
+
+    def _alive_or_raise(self) -> None:
+        for p in self._procs:
+            if not p.is_alive():
+                for box in (self._from_reg, self._from_fuse):  # a worker that failed left a message
+                    try:
+                        item = box.get_nowait()
+                    except queue.Empty:
+                        continue
+                    if item[0] == "error":
+                        _raise(item[1], item[2])
+                raise SemmapError(f"the {p.name} worker stopped unexpectedly (exit code {p.exitcode})")
+
+    def _put(self, item: Any) -> None:
+        while True:
+            try:
+                self._to_reg.put(item, timeout=_POLL_S)
+                return
+            except queue.Full:
+                self._alive_or_raise()
+
+    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+        self._batch.append((painted, odom_pose))
+        if len(self._batch) >= self._batch_size:
+            self._put(self._batch)
+            self._batch = []
+
+    def _get(self, box: Any) -> Any:
+        while True:
+            try:
+                item = box.get(timeout=_POLL_S)
+            except queue.Empty:
+                self._alive_or_raise()
+                continue
+            if item[0] == "error":
+                _raise(item[1], item[2])
+            return item
+
+    def finish(self) -> MapperResult:
+        if self._batch:
+            self._put(self._batch)
+            self._batch = []
+        self._put(None)
+        _, poses, stats, reg_busy = self._get(self._from_reg)
+        _, layers, fuse_busy = self._get(self._from_fuse)
+        return MapperResult(poses, layers, stats, reg_busy, fuse_busy)
+
+    def close(self) -> None:
+        for p in self._procs:
+            if p.is_alive():
+                p.terminate()
+            p.join(timeout=5)
+        for q in self._queues:
+            q.close()

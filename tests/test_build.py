@@ -1,0 +1,120 @@
+"""`semmap build` end to end: the map folder, its quality against ground truth, and its errors."""
+
+import json
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from semmap.cli.main import main
+from semmap.errors import BagError, ConfigError
+from semmap.io.mapserver import read_map
+from semmap.io.tum import read_tum
+from semmap.pipeline import build
+from semmap.register.metrics import ate_errors
+from semmap.sim.scenarios import demo
+from semmap.sim.tour import simulate
+
+MAP_FILES = {"map.yaml", "map.pgm", "semantic.png", "semi_static.yaml", "semi_static.pgm",
+             "semi_static_objects.json", "grid.npz", "trajectory.tum", "odometry.tum", "config.yaml",
+             "summary.json", "report.md", "report/trajectory.png", "report/classes.png"}
+
+
+@pytest.fixture(scope="module")
+def demo_tour(tmp_path_factory):
+    """The full 28 s demo tour (a standing person, a walking one, furniture)."""
+    return simulate("demo", tmp_path_factory.mktemp("tour") / "demo", seed=0)
+
+
+@pytest.fixture(scope="module")
+def demo_map(demo_tour, tmp_path_factory):
+    return build(demo_tour.out, tmp_path_factory.mktemp("maps") / "demo")
+
+
+def _scores(tour, mapdir):
+    from semmap.grid.metrics import ghost_rate, observable_cells, occupancy_f1
+    from semmap.sim.groundtruth import true_beam_end_points
+
+    gt = tour.out / "ground_truth"
+    est_t, est_p = read_tum(mapdir / "trajectory.tum")
+    ref_t, ref_p = read_tum(gt / "trajectory.tum")
+    err, t_gt_map = ate_errors(est_t, est_p, ref_t, ref_p)
+    occ, truth, swept = read_map(mapdir / "map.yaml"), read_map(gt / "occupancy.yaml"), read_map(
+        gt / "people_swept.yaml")
+    obs = observable_cells(truth.occupied, truth.spec, true_beam_end_points(tour.out))
+    f1 = occupancy_f1(occ.occupied, occ.spec, truth.occupied, truth.spec, obs, 1, t_gt_map)
+    return float(np.sqrt(np.mean(err ** 2))), f1, ghost_rate(occ.occupied, occ.spec, swept.occupied, swept.spec,
+                                                              t_gt_map)
+
+
+def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
+    files = {p.relative_to(demo_map.out).as_posix() for p in demo_map.out.rglob("*") if p.is_file()}
+    assert MAP_FILES <= files
+    m = read_map(demo_map.out / "map.yaml")
+    assert m.spec.resolution == 0.05 and m.occupied.sum() > 500 and m.free.sum() > 10 * m.occupied.sum()
+    grid = np.load(demo_map.out / "grid.npz")  # no pickle needed
+    assert grid["log_odds"].shape == m.spec.shape and grid["mobility"].shape[0] == 4
+    summary = json.loads((demo_map.out / "summary.json").read_text())
+    assert summary["counts"]["scans"] == 418 and summary["painting"]["scans_painted"] == 418
+    assert summary["registration"]["icp_rejected"] == 0
+    objs = json.loads((demo_map.out / "semi_static_objects.json").read_text())["objects"]
+    assert {"chair", "couch"} <= {o["class"] for o in objs}
+
+
+def test_demo_map_matches_the_ground_truth(demo_tour, demo_map):
+    ate, f1, ghost = _scores(demo_tour, demo_map.out)
+    assert ate < 0.03
+    assert f1.precision > 0.95 and f1.recall > 0.9
+    assert ghost < 0.01  # the standing person and the walking one are gone
+
+
+def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map, tmp_path):
+    single = build(demo_tour.out, tmp_path / "single", overrides={"workers": False})
+    a, b = np.load(demo_map.out / "grid.npz"), np.load(single.out / "grid.npz")
+    assert np.array_equal(a["log_odds"], b["log_odds"]) and np.array_equal(a["mobility"], b["mobility"])
+    assert read_tum(demo_map.out / "trajectory.tum")[1] == pytest.approx(read_tum(single.out / "trajectory.tum")[1])
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
+def test_ros2_tours_with_jpeg_images_and_mono8_labels(tmp_path, fmt):
+    world = replace(demo().world, duration_s=8.0)
+    tour = simulate(world, tmp_path / "tour", fmt=fmt, seed=1,
+                    config={"camera": {"image_format": "jpeg", "label_encoding": "mono8"}})
+    res = build(tour.out, tmp_path / "map")
+    assert res.summary["tour"]["topics"]["frames"] == "/camera/labels"
+    assert res.summary["painting"]["hits_by_mobility"]["dynamic"] > 50
+    assert res.summary["painting"]["hits_by_class"]["person"] > 50
+
+
+def test_missing_calibration_is_a_clear_error(demo_tour, tmp_path):
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(demo_tour.bag, bare / "demo.bag")
+    with pytest.raises(ConfigError, match="no calibration.*--calibration"):
+        build(bare / "demo.bag", tmp_path / "map")
+    assert not (tmp_path / "map").exists()
+
+
+def test_missing_topic_is_a_clear_error(demo_tour, tmp_path):
+    with pytest.raises(BagError, match="topic /front_scan .*not in the bag"):
+        build(demo_tour.out, tmp_path / "map", overrides={"topics": {"scan": "/front_scan"}})
+
+
+def test_cli_build_one_line_errors(capsys, tmp_path, demo_tour):
+    code = main(["build", str(demo_tour.out), "--out", str(tmp_path / "m"), "--config", str(tmp_path / "nope.yaml")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "nope.yaml" in err
+    code = main(["build", "--out", str(tmp_path / "m")])
+    assert code == 2 and "TOUR or --demo" in capsys.readouterr().err
+
+
+def test_lidar_only_real_bag(data_dir, tmp_path):
+    """A stationary sensor, no camera, no odometry: people walking through leave the map."""
+    bag = data_dir / "leg_tracker" / "positive_3_extracted.bag"
+    res = build(bag, tmp_path / "legs", overrides={"topics": {"scan": "/training_scan", "odometry": "none"},
+                                                   "registration": {"mode": "icp"}})
+    assert res.summary["counts"]["scans"] == 175
+    assert res.summary["tour"]["frames"]["base"] == "right_laser"
+    _, poses = read_tum(res.out / "trajectory.tum")
+    assert np.abs(poses[:, :2]).max() < 0.05  # the sensor did not move

@@ -1,0 +1,274 @@
+"""``semmap calibrate check``: draw the scan projected into the image, coloured by range.
+
+A person judges the calibration by eye, as in the middle panel of the research's Fig. 3:
+with a good ``T_cam_lidar`` the points sit on the walls, legs and furniture they hit; a bad
+one shows them sliding off edges, floating above the floor or bending around corners.
+
+Input: an image and a scan (files, or arrays), or a bag and a time. The bag decoding here is
+deliberately small (``LaserScan``, ``Image``, ``CompressedImage``) and private.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import BagError, ConfigError
+from ..geometry import project_points, se3_apply
+from ..records import Calibration
+from .scans import ranges_to_points, read_scan_points
+
+__all__ = ["CheckResult", "draw_scan_on_image", "check_calibration", "read_image", "frame_from_bag"]
+
+log = logging.getLogger(__name__)
+
+_LOW = 20  # skip turbo's near-black end so near points stay visible on dark things
+
+_SKIP_IMAGE_WORDS = ("label", "mask", "seg", "depth", "semantic")
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """What ``check`` drew: the picture (BGR), how many scan points landed in the image, and
+    (from a bag) the stamps of the image and the scan used."""
+
+    image: NDArray[np.uint8]
+    n_points: int
+    n_in_image: int
+    image_stamp_ns: int | None = None
+    scan_stamp_ns: int | None = None
+    out: Path | None = None
+
+    @property
+    def offset_s(self) -> float | None:
+        if self.image_stamp_ns is None or self.scan_stamp_ns is None:
+            return None
+        return (self.scan_stamp_ns - self.image_stamp_ns) * 1e-9
+
+
+def read_image(path: str | Path) -> NDArray[np.uint8]:
+    """An image file → BGR uint8; errors name the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such image file")
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ConfigError(f"{p}: not an image OpenCV can read")
+    return img
+
+
+def _colour_bar(width: int, lo: float, hi: float, cmap: int) -> NDArray[np.uint8]:
+    bar_h, pad = 14, 6
+    panel = np.full((bar_h + 2 * pad + 14, width, 3), 255, np.uint8)
+    ramp = np.linspace(_LOW, 255, width - 2 * pad).astype(np.uint8)[None, :]
+    colours = cv2.applyColorMap(np.repeat(ramp, bar_h, axis=0), cmap)
+    panel[pad:pad + bar_h, pad:width - pad] = colours
+    n_ticks = 5
+    for k in range(n_ticks):
+        x = pad + int(round(k * (width - 2 * pad - 1) / (n_ticks - 1)))
+        v = lo + k * (hi - lo) / (n_ticks - 1)
+        label = f"{v:.1f} m"
+        (tw, _), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)
+        tx = int(np.clip(x - tw / 2, 0, width - tw))
+        cv2.line(panel, (x, pad + bar_h), (x, pad + bar_h + 3), (0, 0, 0), 1)
+        cv2.putText(panel, label, (tx, pad + bar_h + 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return panel
+
+
+def draw_scan_on_image(
+    image_bgr: NDArray[np.uint8],
+    points_lidar: NDArray[np.float64],
+    calibration: Calibration,
+    *,
+    range_limits: tuple[float, float] | None = None,
+    radius: int = 2,
+    title: str | None = None,
+) -> tuple[NDArray[np.uint8], int]:
+    """Project LiDAR points (N, 2|3, LiDAR frame) through ``T_cam_lidar`` and the camera model
+    onto the image, coloured by range from the LiDAR (turbo: near blue, far red), with a
+    colour bar under the image. Returns the picture and the number of points in the image.
+    """
+    img = np.asarray(image_bgr)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    img = img.copy()
+    intr = calibration.intrinsics
+    if (img.shape[1], img.shape[0]) != (intr.width, intr.height):
+        raise ConfigError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration's camera is "
+                          f"{intr.width}x{intr.height}")
+    pts = np.asarray(points_lidar, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+        raise ConfigError(f"scan points must be (N, 2) or (N, 3), got shape {pts.shape}")
+    if pts.shape[1] == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    rng = np.linalg.norm(pts, axis=1)
+    uv, inside = project_points(intr.K, intr.D, se3_apply(calibration.T_cam_lidar, pts), intr.width,
+                                intr.height, intr.model)
+    if range_limits is None:
+        seen = rng[inside]
+        lo, hi = (float(np.percentile(seen, 2)), float(np.percentile(seen, 98))) if seen.size else (0.0, 1.0)
+        lo, hi = max(0.0, np.floor(lo * 2) / 2), np.ceil(hi * 2) / 2
+        if hi <= lo:
+            hi = lo + 0.5
+    else:
+        lo, hi = range_limits
+    cmap = cv2.COLORMAP_TURBO
+    idx = np.flatnonzero(inside)
+    # far points first, so near ones are drawn on top
+    idx = idx[np.argsort(-rng[idx])]
+    levels = (_LOW + np.clip((rng[idx] - lo) / (hi - lo), 0, 1) * (255 - _LOW)).astype(np.uint8)
+    colours = cv2.applyColorMap(levels[:, None], cmap).reshape(-1, 3) if idx.size else np.zeros((0, 3), np.uint8)
+    for i, c in zip(idx, colours):
+        centre = (int(round(uv[i, 0])), int(round(uv[i, 1])))
+        cv2.circle(img, centre, radius + 1, (0, 0, 0), -1, cv2.LINE_AA)
+        cv2.circle(img, centre, radius, tuple(int(v) for v in c), -1, cv2.LINE_AA)
+    if title:
+        (tw, th), _ = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+        cv2.rectangle(img, (0, 0), (min(tw + 8, img.shape[1]), th + 10), (255, 255, 255), -1)
+        cv2.putText(img, title, (4, th + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([img, _colour_bar(img.shape[1], lo, hi, cmap)]), int(inside.sum())
+
+
+# -- bags -------------------------------------------------------------------------------------
+
+def _stamp(msg: Any) -> int:
+    s = msg.header.stamp
+    return int(s.sec) * 1_000_000_000 + int(getattr(s, "nanosec", getattr(s, "nsec", 0)))
+
+
+def _decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        if img is None:
+            raise BagError(f"cannot decode a {msg.format!r} CompressedImage")
+        return img
+    enc = str(msg.encoding)
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if enc in ("rgb8", "bgr8", "8UC3", "rgba8", "bgra8"):
+        ch = 4 if enc in ("rgba8", "bgra8") else 3
+        a = data.reshape(h, step)[:, : w * ch].reshape(h, w, ch)
+        code = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR}.get(enc)
+        return cv2.cvtColor(a, code) if code is not None else a.copy()
+    if enc in ("mono8", "8UC1"):
+        return cv2.cvtColor(data.reshape(h, step)[:, :w].copy(), cv2.COLOR_GRAY2BGR)
+    if enc in ("mono16", "16UC1"):
+        a = data.reshape(h, step)[:, : 2 * w].copy().view(">u2" if msg.is_bigendian else "<u2").reshape(h, w)
+        a8 = cv2.normalize(a.astype(np.float32), None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        return cv2.cvtColor(a8, cv2.COLOR_GRAY2BGR)
+    raise BagError(f"image encoding {enc!r} is not supported for the check (use rgb8, bgr8, mono8, mono16)")
+
+
+def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic: str | None = None,
+                   scan_topic: str | None = None
+                   ) -> tuple[NDArray[np.uint8], NDArray[np.float64], int, int, str]:
+    """The camera image nearest ``time_s`` seconds after the bag's start (default: the middle of
+    the bag), and the scan nearest it.
+
+    Returns (BGR image, (N, 3) scan points in the scan's frame, image stamp ns, scan stamp ns,
+    scan frame_id). Topics are found by type when not given (image topics named like labels,
+    masks or depth are passed over).
+    """
+    from ..io.bag import open_bag
+
+    with open_bag(bag) as reader:
+        conns = reader.connections
+        by_topic = {c.topic: c.msgtype for c in conns}
+        if scan_topic is None:
+            scans = sorted({c.topic for c in conns if c.msgtype == "sensor_msgs/msg/LaserScan"})
+            if len(scans) != 1:
+                raise BagError(f"{bag}: {'no' if not scans else 'several'} LaserScan topics "
+                               f"({', '.join(scans) or '-'}); name one with --scan-topic")
+            scan_topic = scans[0]
+        if image_topic is None:
+            imgs = sorted({c.topic for c in conns if c.msgtype in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+                           and not any(w in c.topic.lower() for w in _SKIP_IMAGE_WORDS)})
+            if len(imgs) != 1:
+                raise BagError(f"{bag}: {'no' if not imgs else 'several'} camera image topics "
+                               f"({', '.join(imgs) or '-'}); name one with --image-topic")
+            image_topic = imgs[0]
+        for t in (scan_topic, image_topic):
+            if t not in by_topic:
+                raise BagError(f"{bag}: no topic {t} (topics: {', '.join(sorted(by_topic))})")
+        start = reader.start_time
+        if time_s is None:
+            time_s = (reader.end_time - start) * 0.5e-9
+        target = start + int(round(time_s * 1e9))
+        if not start <= target <= reader.end_time:
+            raise BagError(f"{bag}: time {time_s:g} s is outside the bag (0 to {(reader.end_time - start) / 1e9:.1f} s)")
+        img_conns = [c for c in conns if c.topic == image_topic]
+        best: tuple[int, Any, Any] | None = None
+        for conn, t_ns, raw in reader.messages(connections=img_conns):
+            if best is None or abs(t_ns - target) < abs(best[0] - target):
+                best = (t_ns, conn, raw)
+            elif t_ns > target:
+                break
+        if best is None:
+            raise BagError(f"{bag}: no messages on {image_topic}")
+        img_msg = reader.deserialize(best[2], best[1].msgtype)
+        img = _decode_image(img_msg, best[1].msgtype)
+        img_stamp = _stamp(img_msg)
+        scan_conns = [c for c in conns if c.topic == scan_topic]
+        best_s: tuple[int, Any] | None = None
+        window = 2_000_000_000
+        for conn, t_ns, raw in reader.messages(connections=scan_conns, start=max(start, best[0] - window),
+                                               stop=best[0] + window):
+            msg = reader.deserialize(raw, conn.msgtype)
+            st = _stamp(msg)
+            if best_s is None or abs(st - img_stamp) < abs(best_s[0] - img_stamp):
+                best_s = (st, msg)
+        if best_s is None:
+            raise BagError(f"{bag}: no scan on {scan_topic} within 2 s of the image at {time_s:g} s")
+        m = best_s[1]
+        pts = ranges_to_points(np.asarray(m.ranges), float(m.angle_min), float(m.angle_increment),
+                               float(m.range_min), float(m.range_max))
+        return img, pts, img_stamp, best_s[0], str(m.header.frame_id)
+
+
+def check_calibration(
+    calibration: Calibration,
+    *,
+    image: str | Path | NDArray[np.uint8] | None = None,
+    scan: str | Path | NDArray[np.float64] | None = None,
+    bag: str | Path | None = None,
+    time_s: float | None = None,
+    image_topic: str | None = None,
+    scan_topic: str | None = None,
+    out: str | Path | None = None,
+    range_limits: tuple[float, float] | None = None,
+    title: str | None = None,
+) -> CheckResult:
+    """Draw a scan projected into its image with ``calibration``; write it to ``out`` if given.
+
+    Give either ``image`` and ``scan`` (files or arrays) or ``bag`` and ``time_s`` (seconds
+    after the bag's start; default: the middle of the bag).
+    """
+    img_stamp = scan_stamp = None
+    if bag is not None:
+        if image is not None or scan is not None:
+            raise ConfigError("give either a bag and a time, or an image and a scan, not both")
+        img, pts, img_stamp, scan_stamp, frame = frame_from_bag(bag, time_s, image_topic=image_topic,
+                                                                scan_topic=scan_topic)
+        if frame and frame.lstrip("/") != calibration.lidar_frame.lstrip("/"):
+            log.warning("the scan's frame is %r but the calibration's LiDAR frame is %r", frame,
+                        calibration.lidar_frame)
+    else:
+        if image is None or scan is None:
+            raise ConfigError("give an image and a scan (or a bag and a time)")
+        img = read_image(image) if isinstance(image, str | Path) else np.asarray(image)
+        pts = read_scan_points(scan) if isinstance(scan, str | Path) else np.asarray(scan, dtype=np.float64)
+    picture, n_in = draw_scan_on_image(img, pts, calibration, range_limits=range_limits, title=title)
+    out_path = None
+    if out is not None:
+        out_path = Path(out)
+        if not cv2.imwrite(str(out_path), picture):
+            raise ConfigError(f"{out_path}: cannot write the picture (unknown extension or unwritable folder)")
+    if n_in == 0:
+        log.warning("no scan point lands in the image: is T_cam_lidar inverted (T_lidar_cam given)?")
+    return CheckResult(picture, len(pts), n_in, img_stamp, scan_stamp, out_path)

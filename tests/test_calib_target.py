@@ -9,7 +9,12 @@ import yaml
 from semmap.calib.boards import BoardDetection, parse_board_spec
 from semmap.calib.common import pose_error
 from semmap.calib.synth import sim_calibration_truth, sim_intrinsics, simulate_board_views
-from semmap.calib.target import TargetObservation, board_plane, calibrate_target, find_board_segments
+from semmap.calib.target import (
+    TargetObservation,
+    board_plane,
+    calibrate_target,
+    find_board_segments,
+)
 from semmap.calib.workflow import pair_by_stamp
 from semmap.cli.main import main
 from semmap.errors import ConfigError

@@ -83,7 +83,12 @@ def _target_sim(trials: int, tilt: tuple[float, float], n_views: int) -> dict:
     from semmap.calib.boards import BoardDetection, parse_board_spec
     from semmap.calib.common import pose_error
     from semmap.calib.synth import sim_calibration_truth, sim_intrinsics, simulate_board_views
-    from semmap.calib.target import TargetObservation, board_plane, calibrate_target, find_board_segments
+    from semmap.calib.target import (
+        TargetObservation,
+        board_plane,
+        calibrate_target,
+        find_board_segments,
+    )
 
     T, intr = sim_calibration_truth(), sim_intrinsics()
     board = parse_board_spec("chessboard:9x6:0.06")

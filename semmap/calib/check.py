@@ -217,7 +217,7 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
         scan_conns = [c for c in conns if c.topic == scan_topic]
         best_s: tuple[int, Any] | None = None
         window = 2_000_000_000
-        for conn, t_ns, raw in reader.messages(connections=scan_conns, start=max(start, best[0] - window),
+        for conn, _t_ns, raw in reader.messages(connections=scan_conns, start=max(start, best[0] - window),
                                                stop=best[0] + window):
             msg = reader.deserialize(raw, conn.msgtype)
             st = _stamp(msg)

@@ -144,7 +144,7 @@ class _Pipeline:
             else:
                 self.segs.append(seg)
         while len(self.segs) > 1 and self.segs[0].stamp_ns < mid - self.max_offset_ns - 500_000_000:
-            self.segs.popleft()
+            self.frame_source.release(self.segs.popleft())
         if not self.segs:
             return None
         best = min(self.segs, key=lambda s: abs(s.stamp_ns - mid))
@@ -235,7 +235,9 @@ def build(
         msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
         if cfg.workers:
             if tinfo.topics.frames is not None:
-                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+                intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
+                shape = (intr.height, intr.width) if intr is not None else None
+                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
             mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
         else:
             if tinfo.topics.frames is not None:

@@ -74,21 +74,40 @@ class InProcessFrames:
     def next(self) -> Segmentation | None:
         return next(self._it, None)
 
+    def release(self, seg: Segmentation) -> None:
+        pass
+
     def close(self) -> None:
         self._it.close()
 
 
-def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any], out: Any) -> None:
+def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any], out: Any,
+                       shm_name: str | None, shape: tuple[int, int] | None, free_slots: Any) -> None:
+    from multiprocessing import shared_memory
+
     counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+    shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
     try:
+        slots = None
+        if shm is not None and shape is not None:
+            n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
+            slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
         cfg = SegmentationConfig.model_validate(seg_cfg)
         for seg in _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts):
-            out.put(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names, seg.confidence))
+            if slots is not None and seg.label.shape == slots.shape[1:]:
+                i = free_slots.get()  # blocks while the mapper holds every slot: back-pressure
+                slots[i] = seg.label
+                out.put(("slot", seg.stamp_ns, i, seg.names, seg.confidence))
+            else:  # an image of another size: send it whole (the painter will reject it)
+                out.put(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names, seg.confidence))
         out.put(("done", counts))
     except SemmapError as exc:
         out.put(("error", type(exc).__name__, str(exc)))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         out.put(("error", type(exc).__name__, f"frame worker failed: {type(exc).__name__}: {exc}"))
+    finally:
+        if shm is not None:
+            shm.close()
 
 
 def _raise(kind: str, message: str) -> None:
@@ -101,14 +120,32 @@ def _raise(kind: str, message: str) -> None:
 
 
 class FrameWorker:
-    """Segmentations of a camera topic from a worker process, through a bounded queue."""
+    """Segmentations of a camera topic from a worker process.
+
+    Label images travel through shared memory: a pool of ``n_slots`` image slots, each
+    handed back to the worker when the mapper no longer needs that frame
+    (:meth:`release`), so nothing large is copied between processes and the worker runs
+    at most ``n_slots`` frames ahead.
+    """
 
     def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
-                 queue_size: int = 8) -> None:
+                 shape: tuple[int, int] | None = None, n_slots: int = 12, queue_size: int = 16) -> None:
+        from multiprocessing import shared_memory
+
         ctx = mp.get_context("spawn")
         self._queue = ctx.Queue(maxsize=queue_size)
+        self._free = ctx.Queue(maxsize=n_slots)
+        self._shm = None
+        self._slots: NDArray[np.uint16] | None = None
+        if shape is not None:
+            self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
+            self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
+            for i in range(n_slots):
+                self._free.put(i)
+        self._slot_of: dict[int, int] = {}
         self._proc = ctx.Process(target=_frame_worker_main, name="semmap-frames", daemon=True,
-                                 args=(str(bag), topic, msgtype, seg_cfg.model_dump(mode="json"), self._queue))
+                                 args=(str(bag), topic, msgtype, seg_cfg.model_dump(mode="json"), self._queue,
+                                       self._shm.name if self._shm else None, shape, self._free))
         self._proc.start()
         self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
         self._done = False
@@ -123,6 +160,12 @@ class FrameWorker:
                     raise SemmapError(
                         f"the frame worker stopped unexpectedly (exit code {self._proc.exitcode})") from None
                 continue
+            if item[0] == "slot":
+                _, stamp, i, names, conf = item
+                assert self._slots is not None
+                seg = Segmentation(stamp, self._slots[i], names, conf)  # a read-only view, no copy
+                self._slot_of[id(seg)] = i
+                return seg
             if item[0] == "frame":
                 _, stamp, label, names, conf = item
                 return Segmentation(stamp, label, names, conf)
@@ -134,11 +177,24 @@ class FrameWorker:
             _raise(item[1], item[2])
         return None
 
+    def release(self, seg: Segmentation) -> None:
+        """The mapper is done with ``seg``: its slot may be reused."""
+        i = self._slot_of.pop(id(seg), None)
+        if i is not None:
+            self._free.put(i)
+
     def close(self) -> None:
         if self._proc.is_alive():
             self._proc.terminate()
         self._proc.join(timeout=5)
         self._queue.close()
+        self._free.close()
+        self._slot_of.clear()
+        self._slots = None
+        if self._shm is not None:
+            self._shm.close()
+            self._shm.unlink()
+            self._shm = None
 
 
 # ---------------------------------------------------------------------------------------

@@ -244,6 +244,9 @@ def build(
                 frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
             mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
         pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
+        for part in (frames, mapper):  # workers load their libraries before the clock starts
+            if part is not None:
+                part.wait_ready()
         topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
         stats = ReadStats()
         n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan)

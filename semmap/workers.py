@@ -18,8 +18,11 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import queue
+import sys
 import time
+import types
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +40,65 @@ __all__ = ["InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
 log = logging.getLogger(__name__)
 
 _POLL_S = 0.2
+
+
+def _context() -> Any:
+    """Workers are spawned: forking a process that runs other threads (a GUI, a test runner,
+    a logging handler) can deadlock the child."""
+    return mp.get_context("spawn")
+
+
+def _start(procs: list[Any]) -> None:
+    """Start spawned workers without making them re-import the caller's main script.
+
+    multiprocessing's spawn re-runs the ``__main__`` module in every child, so a script that
+    calls :func:`semmap.build` at top level, without an ``if __name__ == "__main__":`` guard,
+    would build again inside each worker. The workers need nothing from ``__main__``: it is
+    hidden while they start.
+    """
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        for p in procs:
+            p.start()
+    finally:
+        if main is not None:
+            sys.modules["__main__"] = main
+
+
+class _Parent:
+    """Lets a worker notice that the process that started it has gone (killed, crashed)."""
+
+    def __init__(self) -> None:
+        self._ppid = os.getppid()
+
+    @property
+    def alive(self) -> bool:
+        return os.getppid() == self._ppid
+
+    def get(self, q: Any) -> Any:
+        while True:
+            try:
+                return q.get(timeout=1.0)
+            except queue.Empty:
+                if not self.alive:
+                    raise SystemExit(0) from None
+
+    def put(self, q: Any, item: Any) -> None:
+        while True:
+            try:
+                q.put(item, timeout=1.0)
+                return
+            except queue.Full:
+                if not self.alive:
+                    raise SystemExit(0) from None
+
+
+def _single_threaded() -> None:
+    """Workers share the machine's cores with each other: no library thread pools of their own."""
+    import cv2
+
+    cv2.setNumThreads(1)
 _COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
 
 
@@ -74,6 +136,9 @@ class InProcessFrames:
     def next(self) -> Segmentation | None:
         return next(self._it, None)
 
+    def wait_ready(self) -> None:
+        pass
+
     def release(self, seg: Segmentation) -> None:
         pass
 
@@ -86,21 +151,26 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
     from multiprocessing import shared_memory
 
     counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+    parent = _Parent()
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
+    _single_threaded()
     try:
         slots = None
         if shm is not None and shape is not None:
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
         cfg = SegmentationConfig.model_validate(seg_cfg)
-        for seg in _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts):
+        frames = _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts)
+        parent.put(out, ("ready",))
+        for seg in frames:
             if slots is not None and seg.label.shape == slots.shape[1:]:
-                i = free_slots.get()  # blocks while the mapper holds every slot: back-pressure
+                i = parent.get(free_slots)  # blocks while the mapper holds every slot: back-pressure
                 slots[i] = seg.label
-                out.put(("slot", seg.stamp_ns, i, seg.names, seg.confidence))
+                parent.put(out, ("slot", seg.stamp_ns, i, seg.names, seg.confidence))
             else:  # an image of another size: send it whole (the painter will reject it)
-                out.put(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names, seg.confidence))
-        out.put(("done", counts))
+                parent.put(out, ("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names,
+                                 seg.confidence))
+        parent.put(out, ("done", counts))
     except SemmapError as exc:
         out.put(("error", type(exc).__name__, str(exc)))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
@@ -132,7 +202,7 @@ class FrameWorker:
                  shape: tuple[int, int] | None = None, n_slots: int = 12, queue_size: int = 16) -> None:
         from multiprocessing import shared_memory
 
-        ctx = mp.get_context("spawn")
+        ctx = _context()
         self._queue = ctx.Queue(maxsize=queue_size)
         self._free = ctx.Queue(maxsize=n_slots)
         self._shm = None
@@ -146,7 +216,7 @@ class FrameWorker:
         self._proc = ctx.Process(target=_frame_worker_main, name="semmap-frames", daemon=True,
                                  args=(str(bag), topic, msgtype, seg_cfg.model_dump(mode="json"), self._queue,
                                        self._shm.name if self._shm else None, shape, self._free))
-        self._proc.start()
+        _start([self._proc])
         self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
         self._done = False
 
@@ -159,6 +229,8 @@ class FrameWorker:
                     self._done = True
                     raise SemmapError(
                         f"the frame worker stopped unexpectedly (exit code {self._proc.exitcode})") from None
+                continue
+            if item[0] == "ready":
                 continue
             if item[0] == "slot":
                 _, stamp, i, names, conf = item
@@ -176,6 +248,23 @@ class FrameWorker:
             self._done = True
             _raise(item[1], item[2])
         return None
+
+    def wait_ready(self) -> None:
+        """Block until the worker has loaded its segmenter (so start-up is not counted as work)."""
+        while True:
+            try:
+                item = self._queue.get(timeout=_POLL_S)
+            except queue.Empty:
+                if not self._proc.is_alive():
+                    raise SemmapError(f"the frame worker stopped while starting (exit code {self._proc.exitcode})"
+                                      ) from None
+                continue
+            if item[0] == "ready":
+                return
+            if item[0] == "error":
+                self._done = True
+                _raise(item[1], item[2])
+            raise SemmapError(f"the frame worker sent {item[0]!r} before 'ready'")
 
     def release(self, seg: Segmentation) -> None:
         """The mapper is done with ``seg``: its slot may be reused."""
@@ -224,6 +313,9 @@ class InProcessMapper:
         self._poses: list[NDArray[np.float64]] = []
         self._busy = [0.0, 0.0]
 
+    def wait_ready(self) -> None:
+        pass
+
     def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
         t0 = time.perf_counter()
         pose = self._registrar.register(painted, odom_pose)
@@ -242,14 +334,17 @@ class InProcessMapper:
 
 
 def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any, outbox: Any) -> None:
+    _single_threaded()
     try:
         from .register import Registrar
 
+        parent = _Parent()
         registrar = Registrar(RegistrationConfig.model_validate(cfg))
+        outbox.put(("ready",))
         poses: list[NDArray[np.float64]] = []
         busy = 0.0
         while True:
-            batch = inbox.get()
+            batch = parent.get(inbox)
             if batch is None:
                 break
             t0 = time.perf_counter()
@@ -259,8 +354,8 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
                 poses.append(pose)
                 out.append((pose, painted))
             busy += time.perf_counter() - t0
-            fusion_inbox.put(out)
-        fusion_inbox.put(None)
+            parent.put(fusion_inbox, out)
+        parent.put(fusion_inbox, None)
         outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         fusion_inbox.put(None)
@@ -268,13 +363,16 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
 
 
 def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox: Any, outbox: Any) -> None:
+    _single_threaded()
     try:
         from .grid import SemanticGrid
 
+        parent = _Parent()
         grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
+        outbox.put(("ready",))
         busy = 0.0
         while True:
-            batch = inbox.get()
+            batch = parent.get(inbox)
             if batch is None:
                 break
             t0 = time.perf_counter()
@@ -295,7 +393,7 @@ class MapperWorkers:
 
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
                  batch: int = 8, queue_size: int = 16) -> None:
-        ctx = mp.get_context("spawn")
+        ctx = _context()
         self._to_reg = ctx.Queue(maxsize=queue_size)
         to_fuse = ctx.Queue(maxsize=queue_size)
         self._from_reg = ctx.Queue(maxsize=1)
@@ -307,10 +405,14 @@ class MapperWorkers:
                         args=(grid_cfg.model_dump(mode="json"), tuple(class_names), to_fuse, self._from_fuse)),
         ]
         self._queues = [self._to_reg, to_fuse, self._from_reg, self._from_fuse]
-        for p in self._procs:
-            p.start()
+        _start(self._procs)
         self._batch: list[tuple[Any, NDArray[np.float64] | None]] = []
         self._batch_size = batch
+
+    def wait_ready(self) -> None:
+        """Block until both workers have loaded their libraries (start-up is not counted as work)."""
+        for box in (self._from_reg, self._from_fuse):
+            self._get(box)
 
     def _alive_or_raise(self) -> None:
         for p in self._procs:

@@ -57,7 +57,7 @@ def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
     assert grid["log_odds"].shape == m.spec.shape and grid["mobility"].shape[0] == 4
     summary = json.loads((demo_map.out / "summary.json").read_text())
     assert summary["counts"]["scans"] == 418 and summary["painting"]["scans_painted"] == 418
-    assert summary["registration"]["icp_rejected"] == 0
+    assert summary["registration"]["icp_rejected"] <= 2
     objs = json.loads((demo_map.out / "semi_static_objects.json").read_text())["objects"]
     assert {"chair", "couch"} <= {o["class"] for o in objs}
 

@@ -245,7 +245,7 @@ def test_dynamic_points_are_neither_matched_nor_mapped():
     err_used = np.hypot(*(used[:, :2] - truth_map[:, :2]).T)
     assert reg.stats["points_dynamic_excluded"] > n * 50
     assert err_kept.max() < 0.04  # 2 cm measured (the people hide much of the room)
-    assert err_used.max() > 0.2  # 40 cm measured: the people drag ICP along
+    assert err_used.max() > 0.1  # 17 cm measured (40 cm with 20 points per voxel): the people drag ICP along
     # nothing of the strip the people walked (map frame x 1-6 m, |y| < 0.7 m) is in the local map
     m = reg.local_map()
     in_crowd = (m[:, 0] > 1.0) & (m[:, 0] < 6.0) & (np.abs(m[:, 1]) < 0.7)

@@ -127,6 +127,9 @@ def main() -> int:
     ap.add_argument("--tours", type=Path, default=Path(tempfile.gettempdir()) / "semmap-bench-tours",
                     help="where simulated tours are cached (seed 0)")
     ap.add_argument("--data", type=Path, default=Path(os.environ.get("SEMMAP_DATA", REPO.parent / "shared" / "data")))
+    ap.add_argument("--speed-runs", type=int, default=3,
+                    help="extra fused builds per scenario for the throughput figure (median; timings vary "
+                         "from run to run on a shared 2-core machine)")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
 
@@ -151,6 +154,22 @@ def main() -> int:
                 print(f"  {sc:<8} {mode:<9} ATE {row['ate_rmse_m']:.3f} m  F1 {row['f1']:.3f}  "
                       f"ghost {100 * row['ghost_rate']:.2f} %  semi P {row['semi_precision']:.3f} "
                       f"R {row['semi_recall']:.3f}  {row['scans_per_s']} scans/s", file=sys.stderr)
+        speed = []
+        for sc in args.scenarios:
+            runs = []
+            for k in range(args.speed_runs):
+                out = Path(tmp) / f"{sc}-speed{k}"
+                res = run_build(args.tours / sc, out, {"registration": {"mode": "fused"}})
+                summary = json.loads(Path(res["summary_path"]).read_text())
+                runs.append((summary["throughput"]["scans_per_s"], summary["throughput"]["real_time_factor"],
+                             summary["peak_rss_mb"], summary["counts"]["scans"], summary["tour"]["duration_s"]))
+            if runs:
+                sps = sorted(r[0] for r in runs)
+                speed.append({"scenario": sc, "runs": len(runs), "scans_per_s_median": sps[len(sps) // 2],
+                              "scans_per_s_min": sps[0], "scans_per_s_max": sps[-1],
+                              "real_time_factor_median": sorted(r[1] for r in runs)[len(runs) // 2],
+                              "peak_rss_mb": max(r[2] for r in runs), "scans": runs[0][3],
+                              "tour_s": runs[0][4]})
         legs = []
         leg_dir = args.data / "leg_tracker"
         if leg_dir.is_dir():
@@ -170,6 +189,15 @@ def main() -> int:
         print(f"| {r['scenario']} | {names[r['mode']]} | {r['ate_rmse_m']:.3f} | {r['f1']:.3f} | "
               f"{100 * r['ghost_rate']:.2f} % | {r['semi_precision']:.3f} | {r['semi_recall']:.3f} | "
               f"{r['scans_per_s']:.0f} | {r['real_time_factor']:.0f}x | {r['peak_rss_mb']:.0f} |")
+    if speed:
+        print("\nThroughput of `semmap build` (EKF fusion; read, paint, register and fuse, label images from the "
+              f"bag so no segmentation model runs; median of {args.speed_runs} runs):\n")
+        print("| scenario | scans | tour (s) | scans/s (median) | range | real-time factor | peak RSS (MB) |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        for r in speed:
+            print(f"| {r['scenario']} | {r['scans']} | {r['tour_s']:.0f} | {r['scans_per_s_median']:.0f} | "
+                  f"{r['scans_per_s_min']:.0f}-{r['scans_per_s_max']:.0f} | {r['real_time_factor_median']:.0f}x | "
+                  f"{r['peak_rss_mb']:.0f} |")
     if legs:
         print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP):\n")
         print("| bag | labelled leg positions | leg cells ever hit | leg cells occupied in the cleaned map |")
@@ -179,7 +207,7 @@ def main() -> int:
                   f"{100 * r['leg_cells_occupied_in_map']:.2f} % |")
     if args.json:
         args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
-                                         "simulated": rows, "leg_tracker": legs}, indent=2))
+                                         "simulated": rows, "speed": speed, "leg_tracker": legs}, indent=2))
     return 0
 
 

@@ -71,6 +71,7 @@ class KissMatcher:
                                 "min_motion_th": cfg.min_motion},
         )
         self._voxel = float(cfg.voxel_size)
+        self._max_source = int(cfg.max_source_points)
         self._down: Any = voxel_down_sample
         self._map: Any = get_voxel_hash_map(self._kcfg)
         self._reg: Any = get_registration(self._kcfg)
@@ -86,6 +87,11 @@ class KissMatcher:
             return PreparedScan(p3, p3)
         map_points = self._down(p3, self._voxel * 0.5)
         source = self._down(map_points, self._voxel * 1.5)
+        if self._max_source and source.shape[0] > self._max_source:
+            # open spaces give many more points than three degrees of freedom need: thin the
+            # ICP source (not the map) with a coarser grid, keeping the cost per scan bounded
+            scale = float(np.sqrt(source.shape[0] / self._max_source))
+            source = self._down(map_points, self._voxel * 1.5 * scale)
         return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64),
                             np.ascontiguousarray(source, dtype=np.float64))
 

@@ -242,7 +242,7 @@ class RegistrationConfig(_Model):
                              "odometry: wheel odometry alone")
     voxel_size: float = Field(0.15, gt=0, description="KISS-ICP voxel size, m (0.1-0.5 indoors)")
     max_range: float = Field(20.0, gt=0, description="points beyond this range are not registered, m")
-    max_source_points: int = Field(150, ge=0, description="thin the ICP source to about this many points "
+    max_source_points: int = Field(100, ge=0, description="thin the ICP source to about this many points "
                                                          "(0: keep KISS-ICP's down-sampling as is)")
     min_range: float = Field(0.1, ge=0, description="points closer than this are not registered, m")
     max_points_per_voxel: int = Field(5, gt=0, description="points kept per map voxel (KISS-ICP: 20 for 3D; a 2D "

@@ -24,7 +24,7 @@ import sys
 import time
 import types
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,13 @@ __all__ = ["InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
 log = logging.getLogger(__name__)
 
 _POLL_S = 0.2
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory, MB."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _context() -> Any:
@@ -170,6 +177,7 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
             else:  # an image of another size: send it whole (the painter will reject it)
                 parent.put(out, ("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names,
                                  seg.confidence))
+        counts["peak_rss_mb"] = round(peak_rss_mb(), 1)
         parent.put(out, ("done", counts))
     except SemmapError as exc:
         out.put(("error", type(exc).__name__, str(exc)))
@@ -299,6 +307,7 @@ class MapperResult:
     registration: dict[str, Any]  # Registrar.stats
     register_busy_s: float
     fuse_busy_s: float
+    peak_rss_mb: dict[str, float] = field(default_factory=dict)  # per worker process
 
 
 class InProcessMapper:
@@ -356,7 +365,8 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
             busy += time.perf_counter() - t0
             parent.put(fusion_inbox, out)
         parent.put(fusion_inbox, None)
-        outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy))
+        outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy,
+                    peak_rss_mb()))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         fusion_inbox.put(None)
         outbox.put(("error", type(exc).__name__, f"registration worker failed: {type(exc).__name__}: {exc}"))
@@ -379,7 +389,7 @@ def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox
             for pose, painted in batch:
                 grid.integrate(pose, painted)
             busy += time.perf_counter() - t0
-        outbox.put(("layers", grid.layers(), busy))
+        outbox.put(("layers", grid.layers(), busy, peak_rss_mb()))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         outbox.put(("error", type(exc).__name__, f"fusion worker failed: {type(exc).__name__}: {exc}"))
 
@@ -456,9 +466,10 @@ class MapperWorkers:
             self._put(self._batch)
             self._batch = []
         self._put(None)
-        _, poses, stats, reg_busy = self._get(self._from_reg)
-        _, layers, fuse_busy = self._get(self._from_fuse)
-        return MapperResult(poses, layers, stats, reg_busy, fuse_busy)
+        _, poses, stats, reg_busy, reg_rss = self._get(self._from_reg)
+        _, layers, fuse_busy, fuse_rss = self._get(self._from_fuse)
+        return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
+                            {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)})
 
     def close(self) -> None:
         for p in self._procs:

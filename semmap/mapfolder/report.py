@@ -43,6 +43,7 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
         legend["dynamic (removed)"] = _REMOVED
     if cleaned.semi_static.any():
         img[cleaned.semi_static] = MOBILITY_COLORS[Mobility.SEMI_STATIC]
+        named = np.zeros(cleaned.spec.shape, bool)
         if layers.class_counts.shape[0] and class_names:
             best = np.argmax(layers.class_counts, axis=0)
             has = layers.class_counts.max(axis=0) > 0
@@ -51,8 +52,10 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
                 sel = cleaned.semi_static & has & (best == k)
                 if sel.any():
                     img[sel] = class_color(name)
+                    named |= sel
                     legend[f"semi-static: {name}"] = class_color(name)
-        legend["semi-static (class unseen)"] = MOBILITY_COLORS[Mobility.SEMI_STATIC]
+        if (cleaned.semi_static & ~named).any():
+            legend["semi-static, class not seen"] = MOBILITY_COLORS[Mobility.SEMI_STATIC]
     return img, legend
 
 
@@ -83,7 +86,7 @@ def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _P
                  f"removed, {len(cleaned.objects)} movable objects", fontsize=9)
     ax.set_aspect("equal")
     fig.tight_layout()
-    fig.savefig(out / "semantic.png")
+    fig.savefig(out / "semantic.png", bbox_inches="tight")
     plt.close(fig)
 
     # trajectory: the map-frame estimate and the wheel odometry, aligned at the first scan
@@ -173,7 +176,9 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         f"{str(t['workers']).lower()}`) fusion and segmentation run beside it (their busy time is listed).",
         "",
         f"Throughput: {th['scans_per_s']} scans/s through read, paint, register and fuse "
-        f"({th['real_time_factor']}× real time); peak memory {s['peak_rss_mb']:.0f} MB.",
+        f"({th['real_time_factor']}× real time); peak memory {s['peak_rss_mb']:.0f} MB in the main process"
+        + ("" if not s.get("peak_rss_mb_workers") else ", " + ", ".join(
+            f"{v:.0f} MB in the {k} worker" for k, v in s["peak_rss_mb_workers"].items())) + ".",
         "",
         "## Messages",
         "",

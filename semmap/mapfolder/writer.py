@@ -140,7 +140,8 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
         },
         "messages": {"read": stats.read, "skipped": stats.skipped,
                      "odometry_out_of_order": pipe.odom.out_of_order if pipe.odom is not None else 0},
-        "counts": {**pipe.counts, **{k: v for k, v in pipe.frame_counts.items() if k != "segment_ms"}},
+        "counts": {**pipe.counts, **{k: v for k, v in pipe.frame_counts.items()
+                                     if k not in ("segment_ms", "peak_rss_mb")}},
         "painting": {
             "class_list": cfg.segmentation.class_list if pipe.class_names else None,
             "backend": cfg.segmentation.backend if pipe.class_names else None,
@@ -175,6 +176,9 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "real_time_factor": round(span_s / loop, 1) if loop > 0 and span_s > 0 else None,
         },
         "peak_rss_mb": round(_peak_rss_mb(), 1),
+        "peak_rss_mb_workers": {**pipe.result.peak_rss_mb,
+                                **({"frames": pipe.frame_counts["peak_rss_mb"]}
+                                   if "peak_rss_mb" in pipe.frame_counts else {})},
         "files": sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()) + ["summary.json",
                                                                                                "report.md"],
     }

@@ -158,7 +158,7 @@ class _Pipeline:
         t0 = time.perf_counter()
         seg = self._segmentation(scan)
         painted = self.painter.paint(scan, self.odom, seg)
-        odom_pose = self.odom.interpolate(painted.stamp_ns) if self.odom is not None else None
+        odom_pose = self.painter.last_odom_pose
         t1 = time.perf_counter()
         self.mapper.push(painted, odom_pose)
         self.timers.paint += t1 - t0

@@ -358,8 +358,8 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
                 break
             t0 = time.perf_counter()
             out = []
-            for painted, odom_pose in batch:
-                pose = registrar.register(painted, odom_pose)
+            for painted, odom_pose, prepared in batch:
+                pose = registrar.register(painted, odom_pose, prepared)
                 poses.append(pose)
                 out.append((pose, painted))
             busy += time.perf_counter() - t0
@@ -402,7 +402,7 @@ class MapperWorkers:
     """
 
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
-                 batch: int = 8, queue_size: int = 16) -> None:
+                 batch: int = 16, queue_size: int = 8) -> None:
         ctx = _context()
         self._to_reg = ctx.Queue(maxsize=queue_size)
         to_fuse = ctx.Queue(maxsize=queue_size)
@@ -416,8 +416,12 @@ class MapperWorkers:
         ]
         self._queues = [self._to_reg, to_fuse, self._from_reg, self._from_fuse]
         _start(self._procs)
-        self._batch: list[tuple[Any, NDArray[np.float64] | None]] = []
+        self._batch: list[tuple[Any, NDArray[np.float64] | None, Any]] = []
         self._batch_size = batch
+        # the stateless down-sampling runs here, beside the painter, to unload the registration worker
+        from .register import Registrar
+
+        self._preparer = Registrar(reg_cfg)
 
     def wait_ready(self) -> None:
         """Block until both workers have loaded their libraries (start-up is not counted as work)."""
@@ -445,7 +449,7 @@ class MapperWorkers:
                 self._alive_or_raise()
 
     def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
-        self._batch.append((painted, odom_pose))
+        self._batch.append((painted, odom_pose, self._preparer.prepare(painted)))
         if len(self._batch) >= self._batch_size:
             self._put(self._batch)
             self._batch = []

@@ -95,19 +95,30 @@ class Painter:
             self._pinhole_no_distortion = calibration.intrinsics.model == "pinhole" and not np.any(
                 calibration.intrinsics.D)
         self.stats = PaintStats()
+        self._dir_key: tuple[float, float, int] | None = None
+        self._dirs = np.zeros((0, 3))
+        #: the odometry pose at the last painted scan's reference time (None if not covered)
+        self.last_odom_pose: NDArray[np.float64] | None = None
+
+    def _directions(self, scan: Scan) -> NDArray[np.float64]:
+        """Unit beam directions (N, 3) in the LiDAR frame, cached: a LiDAR keeps its beam layout."""
+        key = (scan.angle_min, scan.angle_increment, scan.ranges.size)
+        if self._dir_key != key:
+            a = scan.angles
+            self._dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+            self._dir_key = key
+        return self._dirs
 
     def _beams(self, scan: Scan) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
         """LiDAR-frame points (N, 3), the valid-return mask, and the free-space range per beam."""
         r = scan.ranges.astype(np.float64)
         lo = max(scan.range_min, 1e-3)
-        finite = np.isfinite(r)
-        hit = finite & (r >= lo) & (r <= scan.range_max)
-        # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
-        no_return = np.isposinf(r) | (finite & (r > scan.range_max))
+        with np.errstate(invalid="ignore"):
+            hit = (r >= lo) & (r <= scan.range_max)  # False for NaN and ±inf alike
+            # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
+            no_return = r > scan.range_max
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
-        a = scan.angles
-        pts = np.column_stack([free * np.cos(a), free * np.sin(a), np.zeros_like(a)])
-        return pts, hit, free
+        return self._directions(scan) * free[:, None], hit, free
 
     def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
         """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
@@ -122,8 +133,17 @@ class Painter:
 
         xy = pts_base[:, :2].copy()
         origins = np.repeat(origin[None, :], n, axis=0)
-        if self.sync_cfg.deskew and dt_ns and odom is not None and n > 2:
+        poses = None
+        if odom is not None:
             poses = odom.interpolate(np.array([beam_t[0], t_ref, beam_t[-1]], dtype=np.int64))
+            if poses is None:  # the sweep's ends may not be covered; the reference alone may be
+                ref = odom.interpolate(t_ref)
+                self.last_odom_pose = None if ref is None else np.asarray(ref)
+            else:
+                self.last_odom_pose = poses[1].copy()
+        else:
+            self.last_odom_pose = None
+        if self.sync_cfg.deskew and dt_ns and n > 2:
             if poses is not None:
                 # the base pose at each beam's time, seen from the reference (middle) beam: the
                 # sweep lasts tens of ms, so the motion is interpolated linearly from its two ends

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -49,6 +50,15 @@ __all__ = ["Registrar"]
 log = logging.getLogger(__name__)
 
 _ZERO = np.zeros(3)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """A scan ready for ICP (see :meth:`Registrar.prepare`)."""
+
+    scan: Any  # kiss.PreparedScan
+    points_used: int
+    points_dynamic_excluded: int
 
 
 def _as_pose(p: ArrayLike | None, what: str) -> NDArray[np.float64] | None:
@@ -115,12 +125,24 @@ class Registrar:
         """KISS-ICP's local map as (M, 2) map-frame points ((0, 2) in ``odometry`` mode)."""
         return np.zeros((0, 2)) if self._matcher is None else self._matcher.map_points()
 
-    def register(self, scan: PaintedScan, odom_pose: ArrayLike | None) -> NDArray[np.float64]:
+    def prepare(self, scan: PaintedScan) -> Any:
+        """The stateless first step of :meth:`register`: select and down-sample the scan's points.
+
+        It may run in another process (the build pipeline does it beside the painter) and its
+        result be passed to :meth:`register` as ``prepared``. None in ``odometry`` mode.
+        """
+        if self._matcher is None:
+            return None
+        pts, used, dynamic = self._select(scan)
+        return _Prepared(self._matcher.prepare(pts), used, dynamic)
+
+    def register(self, scan: PaintedScan, odom_pose: ArrayLike | None, prepared: Any = None) -> NDArray[np.float64]:
         """Return the base_link pose (x, y, yaw) in the map frame for this scan.
 
         ``odom_pose``: the wheel-odometry pose (x, y, yaw) of base_link in the odom
         frame at ``scan.stamp_ns``, or None. The map frame is the first scan's base
-        pose (identity). Scans must come in time order.
+        pose (identity). Scans must come in time order. ``prepared``: this scan's
+        :meth:`prepare` result, if already computed.
         """
         t0 = time.perf_counter()
         if self._last_stamp is not None and scan.stamp_ns < self._last_stamp:
@@ -131,7 +153,7 @@ class Registrar:
         if self.cfg.mode == "odometry":
             pose = self._odometry_step(odom)
         else:
-            pose = self._scan_step(scan, odom)
+            pose = self._scan_step(scan, odom, prepared if prepared is not None else self.prepare(scan))
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
         self._pose = pose
@@ -150,9 +172,11 @@ class Registrar:
             self._map_from_odom = se2_compose(here, se2_inverse(odom))
         return se2_compose(self._map_from_odom, odom)
 
-    def _scan_step(self, scan: PaintedScan, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    def _scan_step(self, scan: PaintedScan, odom: NDArray[np.float64] | None, prep: _Prepared) -> NDArray[np.float64]:
         assert self._matcher is not None
-        prepared = self._matcher.prepare(self._points(scan))
+        self._counts["points_used"] += prep.points_used
+        self._counts["points_dynamic_excluded"] += prep.points_dynamic_excluded
+        prepared = prep.scan
         if self._pose is None:  # first scan: defines the map frame
             if self._ekf is not None:
                 self._ekf.reset(_ZERO)
@@ -206,17 +230,18 @@ class Registrar:
         return pose
 
     # -- helpers -------------------------------------------------------------------------
-    def _points(self, scan: PaintedScan) -> NDArray[np.float64]:
-        """Hit points within range, without dynamic ones if configured: (M, 2) base frame."""
+    def _select(self, scan: PaintedScan) -> tuple[NDArray[np.float64], int, int]:
+        """Hit points within range, without dynamic ones if configured: (M, 2) base frame,
+        and the counts of points used and of dynamic points left out."""
         keep = scan.hit.copy()
         r = np.hypot(scan.points[:, 0] - scan.origin[0], scan.points[:, 1] - scan.origin[1])
         keep &= (r >= self.cfg.min_range) & (r <= self.cfg.max_range) & np.isfinite(r)
+        dynamic = 0
         if self.cfg.exclude_dynamic:
             dyn = keep & (scan.mobility == int(Mobility.DYNAMIC))
-            self._counts["points_dynamic_excluded"] += int(dyn.sum())
+            dynamic = int(dyn.sum())
             keep &= ~dyn
-        self._counts["points_used"] += int(keep.sum())
-        return scan.points[keep]
+        return scan.points[keep], int(keep.sum()), dynamic
 
     def _icp(self, prepared: Any, guess: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Run ICP from ``guess``; None (counted as failed) when it cannot give a usable pose."""

@@ -210,9 +210,13 @@ class SegmentationConfig(_Model):
 
 
 class PaintConfig(_Model):
-    """Projecting scans into the camera."""
+    """Turning ranges into points and projecting them into the camera."""
 
     min_depth: float = Field(0.1, gt=0, description="points closer to the camera than this are not painted, m")
+    below_range_min: Literal["invalid", "no_return"] = Field(
+        "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
+                               "'no_return' clears free space to the range limit, for drivers such as "
+                               "Hokuyo URG that report 'nothing seen' as small error codes")
 
 
 class EkfConfig(_Model):

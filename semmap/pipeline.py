@@ -270,6 +270,11 @@ def build(
             progress(n_scan_msgs, n_scan_msgs)
         if pipe.counts["scans"] == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
+        ps = pipe.painter.stats
+        if cfg.paint.below_range_min == "invalid" and ps.below_range_min > 0.02 * max(ps.beams, 1):
+            log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
+                        "driver reports 'nothing seen' this way (Hokuyo URG does), set "
+                        "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
         from .mapfolder.writer import write_map_folder
 
         with atomic_dir(out, force) as tmp:

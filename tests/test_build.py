@@ -109,12 +109,29 @@ def test_cli_build_one_line_errors(capsys, tmp_path, demo_tour):
     assert code == 2 and "TOUR or --demo" in capsys.readouterr().err
 
 
-def test_lidar_only_real_bag(data_dir, tmp_path):
+def test_lidar_only_real_bag(data_dir, tmp_path, caplog):
     """A stationary sensor, no camera, no odometry: people walking through leave the map."""
+    from pathlib import Path
+
+    from semmap.grid.metrics import points_to_mask
+    from semmap.io.bag import iter_messages
+
     bag = data_dir / "leg_tracker" / "positive_3_extracted.bag"
-    res = build(bag, tmp_path / "legs", overrides={"topics": {"scan": "/training_scan", "odometry": "none"},
-                                                   "registration": {"mode": "icp"}})
+    over = {"topics": {"scan": "/training_scan", "odometry": "none"}, "registration": {"mode": "icp"}}
+    res = build(bag, tmp_path / "legs", overrides=over)
     assert res.summary["counts"]["scans"] == 175
     assert res.summary["tour"]["frames"]["base"] == "right_laser"
+    assert "below range_min" in caplog.text  # the Hokuyo's "nothing seen" codes are pointed out
     _, poses = read_tum(res.out / "trajectory.tum")
     assert np.abs(poses[:, :2]).max() < 0.05  # the sensor did not move
+    # with the driver's codes read as "no return", the legs' cells are cleared again
+    fixed = build(bag, tmp_path / "legs2", overrides={**over, "paint": {"below_range_min": "no_return"}})
+    legs = np.array([(p.position.x, p.position.y) for _, _, m in iter_messages(bag, ["/leg_cluster_positions"])
+                     for p in m.poses])
+
+    def left(mapdir: Path) -> float:
+        occ = read_map(mapdir / "map.yaml")
+        cells = points_to_mask(legs, occ.spec)
+        return float((occ.occupied & cells).sum() / cells.sum())
+
+    assert left(fixed.out) < 0.05 < left(res.out)

@@ -177,8 +177,11 @@ def main() -> int:
         if leg_dir.is_dir():
             for bag in sorted(leg_dir.glob("positive_*_extracted.bag")):
                 out = Path(tmp) / bag.stem
+                # the Hokuyo driver behind these bags reports "nothing seen" as readings under
+                # range_min (0.006 m, 0.008 m, 0): they clear free space
                 run_build(bag, out, {"topics": {"scan": "/training_scan", "odometry": "none"},
-                                     "registration": {"mode": "icp"}})
+                                     "registration": {"mode": "icp"},
+                                     "paint": {"below_range_min": "no_return"}})
                 legs.append({"bag": bag.name, **score_legs(bag, out)})
 
     print(f"semmap build benchmark, {date.today().isoformat()}")
@@ -202,7 +205,8 @@ def main() -> int:
                   f"{r['scans_per_s_min']:.0f}-{r['scans_per_s_max']:.0f} | {r['real_time_factor_median']:.0f}x | "
                   f"{r['peak_rss_mb']:.0f} |")
     if legs:
-        print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP):\n")
+        print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP, "
+              "`paint.below_range_min: no_return`):\n")
         print("| bag | labelled leg positions | leg cells ever hit | leg cells occupied in the cleaned map |")
         print("|---|---:|---:|---:|")
         for r in legs:

@@ -146,6 +146,8 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "class_list": cfg.segmentation.class_list if pipe.class_names else None,
             "backend": cfg.segmentation.backend if pipe.class_names else None,
             "scans_painted": pipe.painter.stats.painted,
+            "readings_below_range_min_fraction": round(pipe.painter.stats.below_range_min
+                                                       / max(pipe.painter.stats.beams, 1), 4),
             "points_in_view_fraction": round(pipe.painter.stats.points_in_view / max(pipe.painter.stats.points_total, 1), 4),
             "hits_by_mobility": {m: int(v) for m, v in zip(("unknown", "static", "semi_static", "dynamic"),
                                                           pipe.mobility_hits)},

@@ -41,6 +41,8 @@ class PaintStats:
     points_total: int = 0
     deskewed: int = 0
     motion_compensated: int = 0
+    beams: int = 0
+    below_range_min: int = 0  # finite readings under range_min (0 included)
 
 
 def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
@@ -117,6 +119,11 @@ class Painter:
             hit = (r >= lo) & (r <= scan.range_max)  # False for NaN and ±inf alike
             # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
             no_return = r > scan.range_max
+            below = np.isfinite(r) & (r < lo)
+            if self.paint_cfg.below_range_min == "no_return":  # driver error codes meaning "nothing seen"
+                no_return |= below
+        self.stats.beams += r.size
+        self.stats.below_range_min += int(below.sum())
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
         return self._directions(scan) * free[:, None], hit, free
 

@@ -168,3 +168,29 @@ def test_fast_pinhole_projection_agrees_with_opencv():
     slow = _painter(t_base_lidar, tiny).paint(scan, None, seg)
     assert not _painter(t_base_lidar, tiny)._pinhole_no_distortion
     assert np.array_equal(fast.mobility, slow.mobility) and np.array_equal(fast.class_id, slow.class_id)
+
+
+def test_fisheye_camera_paints_like_opencv_projects():
+    """A fisheye calibration: labels are read where cv2.fisheye.projectPoints puts the points."""
+    import cv2
+
+    lcfg, ccfg, t_base_lidar, _ = _rig()
+    k = np.array([[300.0, 0, 320], [0, 300.0, 240], [0, 0, 1]])
+    d = np.array([0.05, -0.01, 0.002, 0.0])
+    t_base_cam = se3_from_xyz_rpy(ccfg.mount.xyz, ccfg.mount.rpy)
+    calib = Calibration(CameraIntrinsics(640, 480, k, d, "fisheye"), se3_inverse(t_base_cam) @ t_base_lidar)
+    lidar = LidarSim(lcfg)
+    ranges = np.full(lidar.angles.size, 3.0)
+    scan = _scan(lidar, ranges, 0, lcfg)
+    # a label image whose value encodes the pixel column band (10 px wide)
+    label = np.tile((np.arange(640) // 10 + 1).astype(np.uint16), (480, 1))
+    names = tuple(["chair"] * 64)
+    painted = Painter(t_base_lidar, calib, names, load_class_table(), PaintConfig(), SyncConfig(), 10.0).paint(
+        scan, None, Segmentation(0, label, names))
+    seen = painted.mobility != Mobility.UNKNOWN
+    assert seen.sum() > 50
+    pts = np.column_stack([ranges * np.cos(lidar.angles), ranges * np.sin(lidar.angles), np.zeros_like(ranges)])
+    p_cam = (calib.T_cam_lidar[:3, :3] @ pts.T).T + calib.T_cam_lidar[:3, 3]
+    uv, _ = cv2.fisheye.projectPoints(p_cam[seen].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, d)
+    expected = np.clip(np.rint(uv.reshape(-1, 2)[:, 0]).astype(int), 0, 639) // 10
+    assert np.array_equal(painted.class_id[seen], expected)

@@ -22,7 +22,7 @@ from ..geometry import se3_from_xyz_rpy
 from ..records import Calibration
 from .bag import iter_messages, resolve_bag_path, topic_types
 from .calibration import read_calibration
-from .messages import odometry_from_msg, scan_from_msg, transforms_from_msg
+from .messages import camera_info_from_msg, odometry_from_msg, scan_from_msg, transforms_from_msg
 from .tf import TfTree
 
 __all__ = ["Tour", "open_tour", "load_build_config", "resolve_topics"]
@@ -141,6 +141,21 @@ def resolve_topics(cfg: BuildConfig, types: dict[str, str], bag: Path, manifest:
     return Topics(scan, frames, kind if frames else "none", odometry, tf_static, camera_info)
 
 
+def _check_camera_info(bag: Path, topic: str, calib: Calibration, calib_path: Path) -> None:
+    """Warn when the bag's CameraInfo disagrees with the calibration file (a calibration of another camera)."""
+    try:
+        info = camera_info_from_msg(_first(bag, topic))
+    except (BagError, ValueError):
+        return
+    mine = calib.intrinsics
+    if (info.width, info.height) != (mine.width, mine.height):
+        log.warning("%s: %s says %dx%d images, calibration %s says %dx%d", bag, topic, info.width, info.height,
+                    calib_path, mine.width, mine.height)
+    elif np.any(info.K) and not np.allclose(info.K, mine.K, rtol=0.01, atol=1.0):
+        log.warning("%s: the intrinsics on %s differ from calibration %s (fx %.1f vs %.1f); using the file",
+                    bag, topic, calib_path, info.fx, mine.fx)
+
+
 def _first(bag: Path, topic: str) -> Any:
     for _, _, msg in iter_messages(bag, [topic]):
         return msg
@@ -213,6 +228,8 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
             raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration; "
                               f"pass --calibration FILE or set 'calibration:' in the config")
         calib = read_calibration(calib_path)
+        if topics.camera_info is not None:
+            _check_camera_info(bag, topics.camera_info, calib, calib_path)
         if calib.lidar_frame and calib.lidar_frame != lidar_frame:
             log.warning("%s: calibration is for LiDAR frame %r, scans are in %r", calib_path,
                         calib.lidar_frame, lidar_frame)

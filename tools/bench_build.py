@@ -35,7 +35,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
-from bench_simulate import machine  # noqa: E402
+from benchlib import machine  # noqa: E402
 
 CHILD = r"""
 import json, sys

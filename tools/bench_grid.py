@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import resource
 import subprocess
 import sys
@@ -68,6 +66,11 @@ class Tour:
     traj: np.ndarray  # (M, 3) true base poses, world frame, yaw unwrapped
     calib: Any
     bag: Path | None
+
+
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import machine  # noqa: E402
 
 
 def load_tour(path: str | Path) -> Tour:
@@ -256,19 +259,6 @@ def run_one(tour_dir: Path, source: str, bleed: int, pose_noise: tuple[float, fl
                class_layers=len(layers.class_ids), objects=len(cleaned.objects),
                peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     return res
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    return f"{cpu}, {os.cpu_count()} cores, {mem:.0f} GB RAM, Python {platform.python_version()}"
 
 
 def main() -> int:

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -53,6 +51,11 @@ class TourData:
     odom: NDArray[np.float64]  # (S, 3) wheel odometry at the stamps (NaN rows outside odometry's span)
     gt_stamps: NDArray[np.int64]
     gt_poses: NDArray[np.float64]  # true base poses, world frame (50 Hz)
+
+
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import machine  # noqa: E402
 
 
 def load_tour(tour: str | Path, deskew: bool = True, limit: int | None = None) -> TourData:
@@ -118,18 +121,6 @@ def run(data: TourData, cfg: RegistrationConfig) -> tuple[NDArray[np.float64], f
         o = data.odom[i]
         poses[i] = reg.register(scan, o if np.all(np.isfinite(o)) else None)
     return poses, time.perf_counter() - t, reg.stats
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 def main() -> int:

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .classes import load_class_table
-from .config import BuildConfig
+from .config import BuildConfig, merge_overrides
 from .errors import BagError
 from .io.atomic import atomic_dir
 from .io.bag import ReadStats, iter_messages, message_count
@@ -207,7 +207,7 @@ def build(
     if isinstance(config, BuildConfig):
         cfg, cfg_dir = config, Path.cwd()
         if overrides:
-            cfg, _ = load_build_config(None, {**config.model_dump(exclude_unset=True), **overrides})
+            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
     else:
         cfg, cfg_dir = load_build_config(config, overrides)
     tour_path = Path(tour)

@@ -176,11 +176,12 @@ def _verdicts(labels: NDArray[np.int32], member: NDArray[np.bool_], n: int, s_dy
 
 
 def _class_mobility(names: Sequence[str]) -> list[Mobility | None]:
-    try:
-        from ..classes import load_class_table
+    from ..classes import load_class_table
+    from ..errors import ConfigError
 
+    try:
         table = load_class_table()
-    except Exception:  # noqa: BLE001 - naming objects must not fail cleaning
+    except ConfigError:  # naming objects must not fail cleaning
         return [None] * len(names)
     return [table.mobility.get(n) for n in names]
 

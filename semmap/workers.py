@@ -16,6 +16,7 @@ come back as :class:`~semmap.errors.SemmapError` with the worker's one-line mess
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing as mp
 import os
@@ -374,6 +375,9 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
 
 def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox: Any, outbox: Any) -> None:
     _single_threaded()
+    # fusion may fall behind (its queue is bounded); registration is the critical path
+    with contextlib.suppress(OSError):
+        os.nice(5)
     try:
         from .grid import SemanticGrid
 

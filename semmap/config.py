@@ -202,11 +202,34 @@ class SyncConfig(_Model):
 
 
 class SegmentationConfig(_Model):
-    """Where labels come from."""
+    """Where labels come from: a backend (see docs/segmentation.md) and its options."""
 
-    backend: str = Field("topic", description="'topic': label images recorded in the bag")
-    class_list: str = Field("coco", description="class list (config/classes.yaml) naming label values")
+    backend: str = Field("topic", description="'topic': label images recorded in the bag; 'folder': label PNGs; "
+                                              "'onnx', 'ultralytics', 'sam3', 'mediapipe-selfie': models")
+    class_list: str = Field("coco", description="class list (config/classes.yaml) naming label values "
+                                                "('topic' and 'folder' backends)")
     classes_file: Path | None = Field(None, description="a class table replacing config/classes.yaml")
+    model: Path | None = Field(None, description="weights: a .onnx file (onnx), a .pt file (ultralytics), a "
+                                                 "model folder (sam3), a .tflite file (mediapipe-selfie; "
+                                                 "default: $SEMMAP_DATA/models/selfie_segmentation.tflite)")
+    folder: Path | None = Field(None, description="'folder' backend: the folder of label PNGs (<stamp_ns>.png)")
+    device: str = Field("cpu", description="'cpu', or 'cuda' / 'cuda:0' where the backend's runtime has it")
+    threads: int = Field(0, ge=0, description="CPU threads the model may use (0: the runtime's default)")
+    conf: float = Field(0.25, ge=0, le=1, description="keep instances scoring at least this")
+    iou: float = Field(0.7, ge=0, le=1, description="NMS: drop boxes overlapping a better one by more than this")
+    mask_threshold: float = Field(0.5, ge=0, le=1, description="a pixel is on a mask above this probability")
+    max_det: int = Field(300, gt=0, description="instances kept per image, best first")
+    imgsz: int | None = Field(None, gt=0, description="model input size (long side), px: default the model's "
+                                                      "(onnx/ultralytics metadata; sam3: the upper bound of "
+                                                      "the adaptive resolution)")
+    prompts: tuple[str, ...] | None = Field(None, description="sam3: one text prompt per class (default: the "
+                                                               "names of class_list); each must be a class name "
+                                                               "of config/classes.yaml")
+    memory_budget_mb: float = Field(4096.0, gt=0, description="sam3: peak activation memory the input "
+                                                               "resolution is scaled to fit, MB")
+    cache_dir: Path | None = Field(None, description="on-disk mask cache: label images keyed by model and "
+                                                     "image stamp, so rebuilding does not segment again "
+                                                     "(null: no cache)")
 
 
 class PaintConfig(_Model):
@@ -217,6 +240,21 @@ class PaintConfig(_Model):
         "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
                                "'no_return' clears free space to the range limit, for drivers such as "
                                "Hokuyo URG that report 'nothing seen' as small error codes")
+    occlusion_filter: bool = Field(True, description="points on a mask the camera cannot see (something nearer of "
+                                                     "the same mask is in the way) become unknown instead of "
+                                                     "taking the mask's label (docs/occlusion.md)")
+    occlusion_depth_margin: float = Field(0.5, ge=0, description="occlusion filter: a point is hidden only by points "
+                                                                 "at least this much nearer the camera, m")
+    occlusion_depth_margin_rel: float = Field(0.05, ge=0, le=1, description="occlusion filter: plus this share of "
+                                                                            "the point's distance")
+    occlusion_ray_width_deg: float = Field(0.5, ge=0, description="occlusion filter: nearer points of the same mask "
+                                                                  "within this bearing hide a point, deg (0: off)")
+    occlusion_max_gap: float = Field(1.0, ge=0, description="occlusion filter: nearer points of the same mask up to "
+                                                            "this far to the side hide a point when the mask joins "
+                                                            "them in the image, m (0: off)")
+    occlusion_probe_drop: float = Field(0.1, ge=0, description="occlusion filter: a point's surface this far lower "
+                                                               "must show the point's label, else what the mask "
+                                                               "shows overhangs it, m (0: off)")
 
 
 class EkfConfig(_Model):

@@ -15,13 +15,15 @@ from .. import __version__
 from ..errors import SemmapError
 from . import build as build_cmd
 from . import calibrate as calibrate_cmd
+from . import evalseg as evalseg_cmd
 from . import info as info_cmd
+from . import segment as segment_cmd
 from . import simulate as simulate_cmd
 
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
 
-COMMANDS = (build_cmd, simulate_cmd, info_cmd, calibrate_cmd)
+COMMANDS = (build_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd, evalseg_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

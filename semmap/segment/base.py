@@ -9,6 +9,23 @@ optional per-pixel confidence. Backends register a factory under a name::
 
 ``consumes`` tells the pipeline what to feed: ``"rgb"`` for models that look at the
 camera image, ``"labels"`` for label images already recorded in the bag.
+
+Built-in backends (one module each; heavy runtimes are imported lazily, when a model loads):
+
+=====================  =====================================  =============================
+name                   module                                 runtime
+=====================  =====================================  =============================
+``topic``              :mod:`semmap.segment.topic`            none (labels in the bag)
+``folder``             :mod:`semmap.segment.folder`           none (label PNGs)
+``onnx``               :mod:`semmap.segment.onnx_backend`     onnxruntime
+``ultralytics``        :mod:`semmap.segment.ultralytics_backend`  ultralytics (``.pt``)
+``sam3``               :mod:`semmap.segment.sam3`             transformers + torch
+``mediapipe-selfie``   :mod:`semmap.segment.selfie`           ai-edge-litert
+=====================  =====================================  =============================
+
+With ``segmentation.cache_dir`` set, :func:`create_segmenter` wraps a model backend in
+:class:`~semmap.segment.cache.CachedSegmenter`: label images are stored per model and
+image stamp, so a rebuild does not segment again.
 """
 
 from __future__ import annotations
@@ -20,7 +37,8 @@ from ..config import SegmentationConfig
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 
-__all__ = ["Segmenter", "SEGMENTERS", "register", "create_segmenter"]
+__all__ = ["Segmenter", "SEGMENTERS", "CONSUMES", "register", "create_segmenter", "backend_consumes",
+           "available_backends"]
 
 
 @runtime_checkable
@@ -61,7 +79,8 @@ def register(name: str, consumes: Literal["rgb", "labels"] = "rgb") -> Callable[
 
 
 def _load_backends() -> None:
-    from . import topic  # noqa: F401 - registers the built-in backends
+    # importing a backend module registers it; none of them imports its runtime at import time
+    from . import folder, onnx_backend, sam3, selfie, topic, ultralytics_backend  # noqa: F401
 
 
 def _check(cfg: SegmentationConfig) -> None:
@@ -77,7 +96,22 @@ def backend_consumes(cfg: SegmentationConfig) -> str:
     return CONSUMES[cfg.backend]
 
 
-def create_segmenter(cfg: SegmentationConfig) -> Segmenter:
-    """Instantiate the configured backend (importing its module registers it)."""
+def available_backends() -> tuple[str, ...]:
+    """The registered backend names (whether their runtimes are installed or not)."""
+    _load_backends()
+    return tuple(sorted(SEGMENTERS))
+
+
+def create_segmenter(cfg: SegmentationConfig, cache: bool = True) -> Segmenter:
+    """Instantiate the configured backend (importing its module registers it).
+
+    With ``cfg.cache_dir`` set (and ``cache`` true), an RGB backend comes wrapped in the
+    on-disk mask cache (:class:`~semmap.segment.cache.CachedSegmenter`).
+    """
     _check(cfg)
-    return SEGMENTERS[cfg.backend](cfg)
+    seg = SEGMENTERS[cfg.backend](cfg)
+    if cache and cfg.cache_dir is not None and CONSUMES[cfg.backend] == "rgb":
+        from .cache import CachedSegmenter
+
+        return CachedSegmenter(seg, cfg)
+    return seg

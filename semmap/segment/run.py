@@ -1,0 +1,230 @@
+"""``semmap segment``: run a backend over a bag's camera topic or an image folder.
+
+Writes into the output folder (atomically, as every semmap output)::
+
+    labels/<name>.png      uint16 label images (value k = classes.json names[k-1], 0 = none)
+    overlays/<name>.jpg    the image with the masks drawn over it and a legend
+    classes.json           {"names": [...], "backend": ..., "model": ...}
+    summary.json           frames, speed, pixel share per class, the effective configuration
+
+``<name>`` is the image's stamp in nanoseconds for bag frames, the file stem for image
+files. The labels folder is what the ``folder`` backend reads back
+(``segmentation: {backend: folder, folder: OUT/labels}``).
+
+The command has no mapping stage, so decoding and inference run in the calling process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import SegmentationConfig
+from ..errors import BagError, ConfigError, SemmapError
+from ..palette import class_color
+from ..records import Image, Segmentation
+from .base import backend_consumes, create_segmenter
+
+__all__ = ["SegmentResult", "segment_source", "iter_image_folder", "draw_overlay"]
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+_IMAGE_T = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+_LABEL_HINTS = ("label", "seg", "mask", "semantic", "class")
+
+ProgressFn = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class SegmentResult:
+    """What :func:`segment_source` wrote."""
+
+    out: Path
+    frames: int
+    bad_frames: int
+    seconds: float  # time in the backend's segment calls
+    names: tuple[str, ...]
+    pixel_share: dict[str, float]  # share of all labelled pixels per class
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.seconds if self.seconds else 0.0
+
+
+def iter_image_folder(folder: Path) -> Iterator[tuple[str, Image]]:
+    """(stem, image) of every image file in a folder, sorted by name; stamps as the ``folder``
+    backend reads them (all-digit stems are nanoseconds, else the index in sorted order)."""
+    files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise ConfigError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    digits = all(p.stem.isdigit() for p in files)
+    for i, p in enumerate(files):
+        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if bgr is None:
+            log.warning("%s: cannot read the image; skipped", p)
+            continue
+        yield p.stem, Image(int(p.stem) if digits else i, p.stem, np.ascontiguousarray(bgr[:, :, ::-1]), "rgb8")
+
+
+def _pick_topic(bag: Path, wanted: str | None, consumes: str) -> tuple[str, str]:
+    from ..io.bag import topic_types
+
+    types = topic_types(bag)
+    if wanted is not None:
+        if wanted not in types:
+            raise BagError(f"{bag}: topic {wanted} is not in the bag")
+        if types[wanted] not in _IMAGE_T:
+            raise BagError(f"{bag}: topic {wanted} is {types[wanted]}, not an image topic")
+        return wanted, types[wanted]
+    images = [t for t, ty in types.items() if ty in _IMAGE_T]
+    labels = [t for t in images if any(h in t.lower() for h in _LABEL_HINTS)]
+    cands = labels if consumes == "labels" else [t for t in images if t not in labels]
+    if len(cands) == 1:
+        return cands[0], types[cands[0]]
+    if not cands:
+        raise BagError(f"{bag}: no camera image topic in the bag")
+    raise BagError(f"{bag}: several image topics ({', '.join(sorted(cands))}); choose one with --topic")
+
+
+def _iter_bag(bag: Path, topic: str, msgtype: str, stats: dict[str, int]) -> Iterator[tuple[str, Image]]:
+    from ..io.bag import iter_messages
+    from ..io.messages import compressed_image_from_msg, image_from_msg
+
+    for _, _, msg in iter_messages(bag, [topic]):
+        try:
+            img = compressed_image_from_msg(msg, topic) if msgtype.endswith("CompressedImage") \
+                else image_from_msg(msg, topic)
+        except SemmapError as exc:
+            stats["bad_frames"] += 1
+            log.debug("skipped a frame on %s: %s", topic, exc)
+            continue
+        yield str(img.stamp_ns), img
+
+
+def draw_overlay(image: Image, seg: Segmentation, alpha: float = 0.5) -> NDArray[np.uint8]:
+    """The image (RGB) with each class's pixels tinted in its colour, outlined, and a legend."""
+    if image.encoding == "rgb8":
+        base = image.data.astype(np.float32)
+    else:
+        g = image.data.astype(np.float32)
+        g = g * (255.0 / max(float(g.max()), 1.0))
+        base = np.repeat(g[:, :, None], 3, axis=2)
+    lut = np.zeros((len(seg.names) + 1, 3), np.float32)
+    for k, n in enumerate(seg.names, start=1):
+        lut[k] = class_color(n)
+    lab = seg.label
+    on = lab > 0
+    out = base.copy()
+    out[on] = (1 - alpha) * base[on] + alpha * lut[lab[on]]
+    out = out.clip(0, 255).astype(np.uint8)
+    edges = cv2.morphologyEx(lab, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+    out[edges & on] = lut[lab[edges & on]].astype(np.uint8)
+    present = [int(v) for v in np.unique(lab) if v > 0]
+    y = 8
+    scale = max(0.4, min(out.shape[:2]) / 900)
+    for v in present:
+        name = seg.names[v - 1]
+        share = np.count_nonzero(lab == v) / lab.size
+        text = f"{name} {100 * share:.0f}%"
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+        cv2.rectangle(out, (6, y), (6 + th + 8 + tw + 6, y + th + 8), (255, 255, 255), -1)
+        cv2.rectangle(out, (9, y + 3), (9 + th, y + 3 + th), tuple(int(c) for c in lut[v]), -1)
+        cv2.putText(out, text, (9 + th + 6, y + th + 3), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+        y += th + 12
+    return out
+
+
+def segment_source(source: str | Path, out: str | Path, config: SegmentationConfig, topic: str | None = None,
+                   overlays: bool = True, limit: int | None = None, force: bool = False,
+                   progress: ProgressFn | None = None) -> SegmentResult:
+    """Segment every image of a bag's camera topic (or of an image folder) into ``out``."""
+    from ..io.atomic import atomic_dir
+    from ..io.bag import message_count, resolve_bag_path
+
+    src = Path(source)
+    if not src.exists():
+        raise ConfigError(f"{src}: no such file or directory")
+    consumes = backend_consumes(config)
+    stats = {"bad_frames": 0}
+    frames: Iterator[tuple[str, Image]]
+    total = 0
+    try:
+        bag = resolve_bag_path(src)
+    except BagError:
+        bag = None
+    if bag is not None:
+        tname, msgtype = _pick_topic(bag, topic, consumes)
+        frames = _iter_bag(bag, tname, msgtype, stats)
+        total = message_count(bag, tname)
+        source_desc = {"bag": str(bag), "topic": tname}
+    elif src.is_dir():
+        frames = iter_image_folder(src)
+        total = sum(1 for p in src.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+        source_desc = {"folder": str(src)}
+    elif src.suffix.lower() in IMAGE_SUFFIXES:
+        frames = iter_image_folder(src.parent)  # keeps stamps consistent with the whole folder
+        frames = (f for f in frames if f[0] == src.stem)
+        total = 1
+        source_desc = {"image": str(src)}
+    else:
+        raise ConfigError(f"{src}: neither a bag, an image folder nor an image file")
+    if limit is not None:
+        total = min(total, limit)
+    seg = create_segmenter(config)
+    n, seconds = 0, 0.0
+    pixels: dict[int, int] = {}
+    try:
+        with atomic_dir(out, force) as tmp:
+            (tmp / "labels").mkdir()
+            if overlays:
+                (tmp / "overlays").mkdir()
+            for name, image in frames:
+                if limit is not None and n >= limit:
+                    break
+                t0 = time.perf_counter()
+                try:
+                    result = seg.segment(image)
+                except SemmapError as exc:
+                    stats["bad_frames"] += 1
+                    log.warning("%s: %s", name, exc)
+                    continue
+                seconds += time.perf_counter() - t0
+                n += 1
+                if not cv2.imwrite(str(tmp / "labels" / f"{name}.png"), result.label):
+                    raise OSError(f"{tmp / 'labels' / name}.png: cannot write")
+                if overlays:
+                    ov = draw_overlay(image, result)
+                    cv2.imwrite(str(tmp / "overlays" / f"{name}.jpg"), ov[:, :, ::-1],
+                                [cv2.IMWRITE_JPEG_QUALITY, 90])
+                counts = np.bincount(result.label.ravel())
+                for v in np.nonzero(counts[1:])[0] + 1:
+                    pixels[int(v)] = pixels.get(int(v), 0) + int(counts[v])
+                if progress is not None:
+                    progress(n, max(total, n))
+            if n == 0:
+                raise SemmapError(f"{src}: no image could be segmented")
+            names = tuple(seg.names)
+            all_px = sum(pixels.values()) or 1
+            share = {names[v - 1]: round(c / all_px, 4) for v, c in sorted(pixels.items(), key=lambda kv: -kv[1])}
+            meta: dict[str, Any] = {"names": list(names), "backend": config.backend,
+                                    "model": str(config.model) if config.model else None}
+            (tmp / "labels" / "classes.json").write_text(json.dumps(meta, indent=1))
+            (tmp / "classes.json").write_text(json.dumps(meta, indent=1))
+            summary = {"source": source_desc, "frames": n, "bad_frames": stats["bad_frames"],
+                       "segment_s": round(seconds, 3), "fps": round(n / seconds, 2) if seconds else None,
+                       "pixel_share": share, "segmentation": config.model_dump(mode="json")}
+            (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
+    finally:
+        seg.close()
+    return SegmentResult(Path(out), n, stats["bad_frames"], seconds, names, share)

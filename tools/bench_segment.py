@@ -1,0 +1,227 @@
+#!/usr/bin/env python3
+"""Benchmark the segmentation backends: speed at 640×480, SAM 3's prompt scaling, and mapping
+throughput while a backend runs in the build's frame worker.
+
+1. **FPS per backend at 640×480** (the ACFR camera images when ../shared/data is present, else a
+   synthetic frame): each backend's ``segment`` call, after a warm-up, median of the runs.
+   - ``mediapipe-selfie``: the real pretrained model from ../shared/data/models.
+   - ``onnx``: a YOLO11n-seg exported to ONNX (``--yolo-onnx`` or ``$SEMMAP_YOLO_ONNX``; weights are
+     random unless you pass a trained export: speed does not depend on them, except that random
+     weights detect nothing, so mask assembly costs nothing). Export one with Ultralytics:
+     ``YOLO('yolo11n-seg.yaml').export(format='onnx', opset=17, dynamic=True)``.
+   - ``sam3``: a random-weight SAM 3 of the ``small`` preset (``semmap.segment.sam3``), 1, 10 and
+     80 prompts; the ratio time(10 prompts) / time(1 prompt) shows what caching the image
+     embedding buys.
+   - ``ultralytics``: only where the package imports (it does not beside torch 2.13.0).
+2. **Mapping throughput with a backend in its worker**: ``semmap build`` of a simulated tour
+   (default ``demo``) with (a) the ``topic`` backend (labels from the bag: mapping alone), (b) the
+   model backend in the frame worker (``workers: true``) and (c) everything in one process
+   (``workers: false``), whose frame source also reports segmentation's own time (decoding and
+   model). Reported: how close (b) comes to max(mapping, segmentation) rather than their sum.
+
+    python tools/bench_segment.py --yolo-onnx /path/yolo11n-seg.onnx --json seg.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from benchlib import machine  # noqa: E402
+
+BUILD_CHILD = r"""
+import json, sys
+from semmap.pipeline import build
+r = build(sys.argv[1], sys.argv[2], overrides=json.loads(sys.argv[3]), force=True)
+s = r.summary
+print(json.dumps({"loop_s": s["timings_s"]["loop"], "total_s": s["timings_s"]["total"],
+                  "scans": s["counts"]["scans"], "frames": s["counts"].get("frames", 0),
+                  "segmentation_busy_s": s["timings_s"]["segmentation_busy"],
+                  "scans_per_s": s["throughput"]["scans_per_s"]}))
+"""
+
+
+
+def frame_640x480(data: Path) -> np.ndarray:
+    import cv2
+
+    imgs = sorted((data / "acfr_calib" / "examples" / "images").glob("*.png"))
+    if imgs:
+        img = cv2.imread(str(imgs[0]))
+        if img is not None and img.shape[:2] == (480, 640):
+            return np.ascontiguousarray(img[:, :, ::-1])
+    rng = np.random.default_rng(0)
+    return rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+
+
+def time_backend(cfg, rgb: np.ndarray, runs: int) -> dict:
+    from semmap.records import Image
+    from semmap.segment.base import create_segmenter
+
+    seg = create_segmenter(cfg, cache=False)
+    try:
+        t0 = time.perf_counter()
+        seg.segment(Image(0, "cam", rgb, "rgb8"))
+        load_s = time.perf_counter() - t0
+        times = []
+        for i in range(runs):
+            # a new stamp and a changed pixel each run: no cached embedding is reused across frames
+            frame = rgb.copy()
+            frame[0, 0, 0] = i % 256
+            t0 = time.perf_counter()
+            seg.segment(Image(i + 1, "cam", frame, "rgb8"))
+            times.append(time.perf_counter() - t0)
+        extra = {}
+        if cfg.backend == "sam3":
+            extra["input_side"] = seg.input_side
+    finally:
+        seg.close()
+    med = statistics.median(times)
+    return {"fps": 1.0 / med, "ms": med * 1e3, "first_call_s": load_s, "runs": runs, **extra}
+
+
+def run_child(code: str, *args: str) -> dict:
+    res = subprocess.run([sys.executable, "-c", code, *args], check=False, capture_output=True, text=True)
+    if res.returncode != 0:
+        raise RuntimeError(res.stderr[-3000:])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", type=Path, default=Path(os.environ.get("SEMMAP_DATA", REPO.parent / "shared" / "data")))
+    ap.add_argument("--yolo-onnx", type=Path, default=os.environ.get("SEMMAP_YOLO_ONNX"),
+                    help="a YOLO11n-seg ONNX export (default $SEMMAP_YOLO_ONNX)")
+    ap.add_argument("--ultralytics-pt", type=Path, help="a .pt model for the ultralytics backend")
+    ap.add_argument("--runs", type=int, default=30, help="timed frames per backend (SAM 3: a fifth)")
+    ap.add_argument("--scenario", default="demo", help="simulated tour for the mapping throughput")
+    ap.add_argument("--pipeline-backend", nargs="+", default=None,
+                    help="backends for the mapping-throughput runs (default: mediapipe-selfie, and onnx if given)")
+    ap.add_argument("--threads", type=int, default=0, help="CPU threads per model (0: the runtime's default)")
+    ap.add_argument("--pipeline-threads", type=int, default=1,
+                    help="model threads in the build's frame worker (default 1: the mapping workers get the "
+                         "other core)")
+    ap.add_argument("--skip-pipeline", action="store_true")
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+
+    from semmap.config import SegmentationConfig
+
+    rgb = frame_640x480(args.data)
+    results: dict = {"date": date.today().isoformat(), "machine": machine(), "fps": {}, "notes": []}
+    print(f"# semmap segmentation benchmark, {results['date']}, {results['machine']}\n")
+
+    candidates: list[tuple[str, SegmentationConfig, int]] = []
+    selfie = args.data / "models" / "selfie_segmentation.tflite"
+    if selfie.is_file():
+        candidates.append(("mediapipe-selfie", SegmentationConfig(backend="mediapipe-selfie", model=selfie, threads=args.threads),
+                           args.runs * 3))
+    if args.yolo_onnx:
+        candidates.append((f"onnx ({args.yolo_onnx.name})", SegmentationConfig(backend="onnx", model=args.yolo_onnx,
+                                                                             threads=args.threads),
+                           args.runs))
+    else:
+        results["notes"].append("onnx: no --yolo-onnx / $SEMMAP_YOLO_ONNX given")
+    sam3_dir = None
+    try:
+        from semmap.segment.sam3 import save_random_model
+
+        sam3_dir = save_random_model(Path(tempfile.mkdtemp(prefix="semmap-sam3-")) / "small", "small")
+        from semmap.classes import load_class_table
+
+        coco = load_class_table(None).names("coco")
+        for n in (1, 10, 80):
+            candidates.append((f"sam3 (small, {n} prompt{'s' if n > 1 else ''})",
+                               SegmentationConfig(backend="sam3", model=sam3_dir, prompts=coco[:n],
+                                                  threads=args.threads),
+                               max(3, args.runs // 5)))
+    except Exception as exc:  # noqa: BLE001 - report what could not run
+        results["notes"].append(f"sam3: {type(exc).__name__}: {exc}")
+    if args.ultralytics_pt:
+        candidates.append(("ultralytics", SegmentationConfig(backend="ultralytics", model=args.ultralytics_pt),
+                           args.runs))
+    else:
+        try:
+            import ultralytics  # noqa: F401
+        except Exception as exc:  # noqa: BLE001
+            results["notes"].append(f"ultralytics: does not import here ({type(exc).__name__}: "
+                                    f"{str(exc).splitlines()[0][:120]})")
+
+    print(f"load average before: {os.getloadavg()[0]:.2f}\n")
+    print("| backend | ms / frame (median) | FPS at 640×480 | first call (load), s |")
+    print("|---|---:|---:|---:|")
+    for label, cfg, runs in candidates:
+        try:
+            r = time_backend(cfg, rgb, runs)
+        except Exception as exc:  # noqa: BLE001
+            results["notes"].append(f"{label}: {type(exc).__name__}: {exc}")
+            continue
+        results["fps"][label] = r
+        side = f" (input {r['input_side']}²)" if "input_side" in r else ""
+        print(f"| {label}{side} | {r['ms']:.1f} | {r['fps']:.1f} | {r['first_call_s']:.2f} |")
+    s1 = next((v for k, v in results["fps"].items() if k.startswith("sam3") and "1 prompt)" in k), None)
+    s10 = next((v for k, v in results["fps"].items() if k.startswith("sam3") and "10 prompts" in k), None)
+    if s1 and s10:
+        results["sam3_ratio_10_over_1"] = s10["ms"] / s1["ms"]
+        print(f"\nSAM 3 (small): time(10 prompts) / time(1 prompt) = {results['sam3_ratio_10_over_1']:.2f} "
+              f"(target ≤ 1.5)")
+
+    if not args.skip_pipeline:
+        from semmap.sim.tour import simulate
+
+        work = Path(tempfile.mkdtemp(prefix="semmap-bench-seg-"))
+        tour = simulate(args.scenario, work / "tour", seed=0, force=True).out
+        mapping = run_child(BUILD_CHILD, str(tour), str(work / "m_topic"), json.dumps({}))
+        backends = args.pipeline_backend or (["mediapipe-selfie"] + (["onnx"] if args.yolo_onnx else []))
+        results["pipeline"] = []
+        print(f"\nMapping throughput, `{args.scenario}` tour ({mapping['scans']} scans), the model in the frame "
+              f"worker with {args.pipeline_threads} thread(s):\n")
+        print("| backend | mapping alone, s | segmentation alone, s | **build, model in its worker**, s "
+              "| all in one process, s | max / sum, s | gained of (sum − max) | scans/s alone → with model |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|")
+        for backend in backends:
+            seg = {"backend": backend, "threads": args.pipeline_threads}
+            if backend == "onnx":
+                seg["model"] = str(args.yolo_onnx)
+            elif backend == "mediapipe-selfie":
+                seg["model"] = str(selfie)
+            both = run_child(BUILD_CHILD, str(tour), str(work / "m_worker"), json.dumps({"segmentation": seg}))
+            serial = run_child(BUILD_CHILD, str(tour), str(work / "m_serial"),
+                               json.dumps({"segmentation": seg, "workers": False}))
+            # segmentation's own time: decoding + segment calls, as the frame source counts it in the
+            # one-process build (there it never runs beside mapping, so it is not slowed by it)
+            t_map, t_seg, t_both = mapping["loop_s"], serial["segmentation_busy_s"], both["loop_s"]
+            best, worst = max(t_map, t_seg), t_map + t_seg
+            frac = (worst - t_both) / (worst - best) if worst > best else float("nan")
+            row = {"scenario": args.scenario, "backend": backend, "scans": mapping["scans"],
+                   "frames": serial["frames"], "mapping_alone_s": t_map, "segmentation_alone_s": t_seg,
+                   "with_worker_s": t_both, "in_one_process_s": serial["loop_s"], "max_s": best, "sum_s": worst,
+                   "share_of_overlap_gained": frac, "scans_per_s_mapping_alone": mapping["scans_per_s"],
+                   "scans_per_s_with_worker": both["scans_per_s"]}
+            results["pipeline"].append(row)
+            print(f"| {backend} ({serial['frames']} frames) | {t_map:.2f} | {t_seg:.2f} | **{t_both:.2f}** | "
+                  f"{serial['loop_s']:.2f} | {best:.2f} / {worst:.2f} | {100 * frac:.0f} % | "
+                  f"{mapping['scans_per_s']} → {both['scans_per_s']} |")
+    results["load_average_after"] = os.getloadavg()[0]
+    print(f"\nload average after: {results['load_average_after']:.2f}")
+    for n in results["notes"]:
+        print(f"note: {n}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

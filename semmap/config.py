@@ -240,21 +240,29 @@ class PaintConfig(_Model):
         "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
                                "'no_return' clears free space to the range limit, for drivers such as "
                                "Hokuyo URG that report 'nothing seen' as small error codes")
-    occlusion_filter: bool = Field(True, description="points on a mask the camera cannot see (something nearer of "
-                                                     "the same mask is in the way) become unknown instead of "
-                                                     "taking the mask's label (docs/occlusion.md)")
-    occlusion_depth_margin: float = Field(0.5, ge=0, description="occlusion filter: a point is hidden only by points "
-                                                                 "at least this much nearer the camera, m")
-    occlusion_depth_margin_rel: float = Field(0.05, ge=0, le=1, description="occlusion filter: plus this share of "
-                                                                            "the point's distance")
-    occlusion_ray_width_deg: float = Field(0.5, ge=0, description="occlusion filter: nearer points of the same mask "
-                                                                  "within this bearing hide a point, deg (0: off)")
-    occlusion_max_gap: float = Field(1.0, ge=0, description="occlusion filter: nearer points of the same mask up to "
-                                                            "this far to the side hide a point when the mask joins "
-                                                            "them in the image, m (0: off)")
-    occlusion_probe_drop: float = Field(0.1, ge=0, description="occlusion filter: a point's surface this far lower "
-                                                               "must show the point's label, else what the mask "
-                                                               "shows overhangs it, m (0: off)")
+    occlusion_filter: bool = Field(True, description="points on a mask that nearer points of the same mask hide "
+                                                     "from the camera become unknown instead of taking the "
+                                                     "mask's label (README, 'The occlusion filter')")
+    occlusion_depth_margin: float = Field(0.25, ge=0, description="occlusion filter: a point is hidden only by "
+                                                                  "points at least this much nearer the camera, m")
+    occlusion_depth_margin_rel: float = Field(0.03, ge=0, le=1, description="occlusion filter: plus this share of "
+                                                                            "the point's distance from the camera")
+    occlusion_ray_width_deg: float = Field(0.5, ge=0, description="occlusion filter: added to each occluding "
+                                                                  "point's footprint (one beam spacing), deg")
+    occlusion_max_gap: float = Field(2.2, ge=0, description="occlusion filter: nearer points of the same mask up to "
+                                                            "this far apart hide the points between them when the "
+                                                            "mask joins them in the image, m (0: off)")
+    occlusion_edge_px: float = Field(8.0, ge=0, description="occlusion filter: a mask may spill this many pixels "
+                                                            "past its object's outermost point; points there "
+                                                            "behind the object are hidden too, px (0: off)")
+    occlusion_overhang: float = Field(0.3, ge=0, description="occlusion filter: an object may reach this far to "
+                                                             "the side of its outermost point seen at LiDAR "
+                                                             "height (a seat over chair legs), m (0: off)")
+    occlusion_line_step: float = Field(0.06, ge=0, description="occlusion filter: neighbouring scan points closer "
+                                                               "than this are one surface; a surface that runs "
+                                                               "off the mask is background behind it, m (0: off)")
+    occlusion_line_depth_margin: float = Field(0.15, ge=0, description="occlusion filter: such background is hidden "
+                                                                      "by mask points at least this much nearer, m")
 
 
 class EkfConfig(_Model):

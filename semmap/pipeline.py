@@ -122,7 +122,9 @@ class _Pipeline:
         return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
 
     def _ready(self, t_bag_now: int, scan_bag: int, scan: Scan) -> bool:
-        odom_ok = self.odom is None or (self.odom.last_ns is not None and self.odom.last_ns >= self._end_ns(scan))
+        # odometry must reach past the sweep and the latest image it may be paired with (motion compensation)
+        need = self._end_ns(scan) + self.max_offset_ns
+        odom_ok = self.odom is None or (self.odom.last_ns is not None and self.odom.last_ns >= need)
         stalled = t_bag_now - scan_bag > 2_000_000_000 or len(self.pending) > 64
         return odom_ok or stalled
 

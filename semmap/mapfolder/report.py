@@ -164,6 +164,8 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         f"{s['painting']['scans_painted']} of {c['scans']} scans had an image, "
         f"{100 * s['painting']['points_in_view_fraction']:.0f} % of their returns were in view.",
         "",
+        _occlusion_line(s['painting'].get('occlusion_filter')),
+        "",
         f"![classes]({pictures['classes']})",
         "",
         "## Timings",
@@ -188,3 +190,13 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _occlusion_line(o: dict | None) -> str:
+    if not o:
+        return ""
+    if not o["on"]:
+        return "Occlusion filter: off (`paint.occlusion_filter: false`)."
+    return (f"Occlusion filter: {o['points_relabelled']} points on a mask the camera could not see became unknown "
+            f"({o['points_relabelled_per_painted_scan']} per painted scan, at most "
+            f"{o['points_relabelled_max_per_scan']} in one scan; {o['scans_with_relabelled_points']} scans).")

@@ -149,6 +149,14 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "readings_below_range_min_fraction": round(pipe.painter.stats.below_range_min
                                                        / max(pipe.painter.stats.beams, 1), 4),
             "points_in_view_fraction": round(pipe.painter.stats.points_in_view / max(pipe.painter.stats.points_total, 1), 4),
+            "occlusion_filter": {
+                "on": cfg.paint.occlusion_filter,
+                "points_relabelled": pipe.painter.stats.occlusion_relabelled,
+                "points_relabelled_per_painted_scan": round(pipe.painter.stats.occlusion_relabelled
+                                                            / max(pipe.painter.stats.painted, 1), 2),
+                "points_relabelled_max_per_scan": pipe.painter.stats.occlusion_max_per_scan,
+                "scans_with_relabelled_points": pipe.painter.stats.occlusion_scans,
+            },
             "hits_by_mobility": {m: int(v) for m, v in zip(("unknown", "static", "semi_static", "dynamic"),
                                                           pipe.mobility_hits)},
             "hits_by_class": {pipe.class_names[i]: int(v) for i, v in enumerate(pipe.class_hits) if v > 0},

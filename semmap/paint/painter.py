@@ -10,7 +10,10 @@ For each scan the painter
 3. brings them to the image's capture time the same way (the robot moves between
    the scan stamp and the image stamp), maps them into the camera with
    ``T_cam_lidar @ T_lidar_base`` and projects them with the calibrated camera model;
-4. reads the label under each point and maps class → mobility through the class table.
+4. reads the label under each point and maps class → mobility through the class table;
+5. runs the occlusion filter (:mod:`semmap.paint.occlusion`): points inside a mask that the
+   camera cannot see, because a nearer LiDAR point lies on the same viewing ray, lose the
+   mask's label and become ``unknown``.
 
 Points that land outside the image, behind the camera, or on no image at all are
 ``unknown`` (mobility 0); points inside the image on no mask are ``static``.
@@ -29,8 +32,9 @@ from ..config import PaintConfig, SyncConfig
 from ..geometry import project_points, se2_between, se3_apply, se3_inverse
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
+from .occlusion import OcclusionParams, hidden_points
 
-__all__ = ["Painter", "PaintStats"]
+__all__ = ["Painter", "PaintStats", "CameraView"]
 
 
 @dataclass
@@ -43,6 +47,25 @@ class PaintStats:
     motion_compensated: int = 0
     beams: int = 0
     below_range_min: int = 0  # finite readings under range_min (0 included)
+    occlusion_relabelled: int = 0  # points on a mask the occlusion filter made unknown
+    occlusion_max_per_scan: int = 0
+    occlusion_scans: int = 0  # scans with at least one such point
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """How the last painted scan's points fell into the camera (for pictures and debugging).
+
+    ``beams`` (K,) indexes the scan's beams that landed in the image; ``uv`` (K, 2) their
+    pixels (column, row); ``label`` (K,) the label value under them (0: no mask); ``hidden``
+    (K,) the points the occlusion filter found hidden from the camera.
+    """
+
+    stamp_ns: int  # the image's capture time
+    beams: NDArray[np.intp]
+    uv: NDArray[np.float64]
+    label: NDArray[np.intp]
+    hidden: NDArray[np.bool_]
 
 
 def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
@@ -101,6 +124,13 @@ class Painter:
         self._dirs = np.zeros((0, 3))
         #: the odometry pose at the last painted scan's reference time (None if not covered)
         self.last_odom_pose: NDArray[np.float64] | None = None
+        #: points of the last scan the occlusion filter relabelled unknown
+        self.last_relabelled = 0
+        #: the last scan's projection into the camera (None when it was not painted)
+        self.last_view: CameraView | None = None
+        self._occlusion = OcclusionParams.from_config(paint_cfg) if paint_cfg.occlusion_filter else None
+        if calibration is not None:
+            self._eye = se3_inverse(self.T_cam_base)[:2, 3].copy()  # the camera centre in the base frame
 
     def _directions(self, scan: Scan) -> NDArray[np.float64]:
         """Unit beam directions (N, 3) in the LiDAR frame, cached: a LiDAR keeps its beam layout."""
@@ -170,8 +200,11 @@ class Painter:
 
         mobility = np.zeros(n, np.uint8)
         class_id = np.full(n, -1, np.int16)
+        self.last_relabelled = 0
+        self.last_view = None
         if seg is not None and self.calib is not None:
-            self._paint_labels(xy, pts_base[:, 2], hit, t_ref, odom, seg, mobility, class_id)
+            footprint = np.abs(scan.ranges.astype(np.float64) * scan.angle_increment)
+            self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id)
         return PaintedScan(
             stamp_ns=t_ref,
             origin=origins[n // 2] if n else origin,
@@ -183,7 +216,8 @@ class Painter:
             frame_id=scan.frame_id,
         )
 
-    def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_], t_ref: int,
+    def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_],
+                      footprint: NDArray[np.float64], t_ref: int,
                       odom: OdomTrack | None, seg: Segmentation, mobility: NDArray[np.uint8],
                       class_id: NDArray[np.int16]) -> None:
         assert self.calib is not None
@@ -208,7 +242,8 @@ class Painter:
         x0, x1, y0, y1 = self._bounds
         with np.errstate(divide="ignore", invalid="ignore"):
             xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
-        front = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1) & (yn >= y0) & (yn <= y1)
+        ahead = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1)  # in front, a column of the image
+        front = ahead & (yn >= y0) & (yn <= y1)
         if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
             k = intr.K
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -219,17 +254,37 @@ class Painter:
             uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
                                         min_depth=self.paint_cfg.min_depth)
         ok = inside & front
+        # the occlusion filter also looks at points above or below the image (their label: the image's edge)
+        seen = (ahead & np.isfinite(uv).all(axis=1)) if self._occlusion is not None else ok
         if not ok.any():
             return
-        px = np.rint(uv[ok]).astype(np.intp)
+        px = np.rint(np.where(seen[:, None], uv, 0.0)).astype(np.intp)
         px[:, 0] = np.clip(px[:, 0], 0, intr.width - 1)
         px[:, 1] = np.clip(px[:, 1], 0, intr.height - 1)
-        labels = seg.label[px[:, 1], px[:, 0]].astype(np.intp)
-        known = labels <= len(self.class_names)  # values beyond the class list are treated as no object
-        labels = np.where(known, labels, 0)
+        labels = seg.label[px[seen, 1], px[seen, 0]].astype(np.intp)
+        labels = np.where(labels <= len(self.class_names), labels, 0)  # values beyond the class list: no object
+        hidden = np.zeros(labels.size, bool)
+        if self._occlusion is not None:
+            # visibility from the camera's own viewpoint, at the image time, in the LiDAR plane
+            s_idx = sel[seen]
+            hidden = hidden_points(pts_xy[s_idx], self._eye, labels, px[seen].astype(np.float64), ok[seen],
+                                   footprint[s_idx], seg.label, self._occlusion)
+        in_img = ok[seen]
+        labels, hidden = labels[in_img], hidden[in_img]
         idx = sel[ok]
-        mobility[idx] = self._mobility_lut[labels]
-        class_id[idx] = self._class_lut[labels]
+        mob = self._mobility_lut[labels]
+        cls = self._class_lut[labels]
+        n_hidden = int(np.count_nonzero(hidden))
+        if n_hidden:
+            mob[hidden] = Mobility.UNKNOWN
+            cls[hidden] = -1
+            self.last_relabelled = n_hidden
+            self.stats.occlusion_relabelled += n_hidden
+            self.stats.occlusion_scans += 1
+            self.stats.occlusion_max_per_scan = max(self.stats.occlusion_max_per_scan, n_hidden)
+        mobility[idx] = mob
+        class_id[idx] = cls
+        self.last_view = CameraView(seg.stamp_ns, idx, uv[ok], labels, hidden)
         self.stats.painted += 1
         self.stats.points_in_view += int(ok.sum())
         self.stats.points_total += int(hit.sum())

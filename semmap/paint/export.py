@@ -1,0 +1,301 @@
+"""``semmap paint``: the painted scans of a tour, with and without the occlusion filter.
+
+:func:`iter_painted` streams a tour through the same painter ``semmap build`` uses (deskew,
+motion compensation to the image time, projection, label lookup) twice per scan: once with
+the occlusion filter, once without. :func:`export_painted` writes one row per beam to CSV
+or NPZ for anyone to score or plot; :func:`semmap.paint.figure.paint_picture` draws the
+research's Fig. 6 for one camera frame: the mask, the painted points without the filter,
+and with it.
+
+Scans are paired with images as in ``semmap build``: the image nearest the scan's middle
+beam within ``sync.max_image_offset``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..classes import load_class_table
+from ..config import BuildConfig, merge_overrides
+from ..errors import BagError, ConfigError, OutputExistsError
+from ..records import Mobility, PaintedScan, Scan, Segmentation
+from .motion import OdomTrack
+from .painter import CameraView, Painter
+
+__all__ = ["PaintedPair", "PaintExport", "iter_painted", "export_painted", "EXPORT_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[int, int], None]
+
+#: the columns of the exported file, in order (see README, "semmap paint")
+EXPORT_COLUMNS = ("stamp_ns", "beam", "x", "y", "class_raw", "mobility_raw", "class", "mobility")
+
+
+@dataclass(frozen=True)
+class PaintedPair:
+    """One scan painted twice: ``raw`` without the occlusion filter, ``filtered`` with it.
+
+    ``view`` is how the scan fell into the camera (None when no image was paired with it);
+    ``segmentation`` the label image it was painted with.
+    """
+
+    scan: Scan
+    raw: PaintedScan
+    filtered: PaintedScan
+    view: CameraView | None
+    segmentation: Segmentation | None
+
+    @property
+    def relabelled(self) -> int:
+        """Points the filter made unknown."""
+        return int(np.count_nonzero(self.raw.mobility != self.filtered.mobility))
+
+
+@dataclass(frozen=True)
+class PaintExport:
+    """What :func:`export_painted` wrote."""
+
+    out: Path
+    format: str
+    scans: int
+    beams: int
+    scans_painted: int
+    relabelled: int
+    relabelled_max_per_scan: int
+    class_names: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _load(tour: str | Path, config: str | Path | BuildConfig | None, calibration: str | Path | None,
+          overrides: dict[str, Any] | None) -> tuple[Any, BuildConfig, tuple[str, ...]]:
+    from ..io.tour import load_build_config, open_tour
+    from ..segment.base import backend_consumes, create_segmenter
+
+    if isinstance(config, BuildConfig):
+        cfg, cfg_dir = config, Path.cwd()
+        if overrides:
+            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
+    else:
+        cfg, cfg_dir = load_build_config(config, overrides)
+    if not Path(tour).exists():
+        raise BagError(f"{tour}: no such file or directory")
+    tinfo = open_tour(Path(tour), cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
+    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
+        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
+        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    if tinfo.topics.frames is None:
+        raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
+                       f"or topics.labels")
+    probe = create_segmenter(cfg.segmentation)
+    names = probe.names
+    probe.close()
+    return tinfo, cfg, tuple(names)
+
+
+def iter_painted(
+    tour: str | Path,
+    config: str | Path | BuildConfig | None = None,
+    calibration: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: ProgressFn | None = None,
+) -> Iterator[PaintedPair]:
+    """Paint every scan of ``tour`` with and without the occlusion filter, in scan order.
+
+    The filter's parameters come from the config (``paint.occlusion_*``); the filtered
+    painting uses them even where the config switches the filter off.
+    """
+    from ..io.bag import iter_messages, message_count
+    from ..io.messages import odometry_from_msg, scan_from_msg
+    from ..workers import InProcessFrames
+
+    tinfo, cfg, names = _load(tour, config, calibration, overrides)
+    table = load_class_table(cfg.segmentation.classes_file)
+
+    def painter(on: bool) -> Painter:
+        paint_cfg = cfg.paint.model_copy(update={"occlusion_filter": on})
+        return Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, paint_cfg, cfg.sync,
+                       cfg.grid.max_free_range)
+
+    raw_painter, painter_on = painter(False), painter(True)
+    odom = OdomTrack(cfg.sync.max_odom_gap) if tinfo.topics.odometry else None
+    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, tinfo.types.get(tinfo.topics.frames, ""),
+                             cfg.segmentation)
+    max_offset = int(cfg.sync.max_image_offset * 1e9)
+    segs: deque[Segmentation] = deque()
+    frames_done = False
+    pending: deque[tuple[int, Scan]] = deque()
+    last_stamp: list[int] = []
+
+    def end_ns(scan: Scan) -> int:
+        return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
+
+    def segmentation(scan: Scan) -> Segmentation | None:
+        nonlocal frames_done
+        mid = scan.stamp_ns + (end_ns(scan) - scan.stamp_ns) // 2
+        while not frames_done and (not segs or segs[-1].stamp_ns < mid + max_offset):
+            seg = frames.next()
+            if seg is None:
+                frames_done = True
+            else:
+                segs.append(seg)
+        while len(segs) > 1 and segs[0].stamp_ns < mid - max_offset - 500_000_000:
+            segs.popleft()
+        if not segs:
+            return None
+        best = min(segs, key=lambda s: abs(s.stamp_ns - mid))
+        return best if abs(best.stamp_ns - mid) <= max_offset else None
+
+    def process(scan: Scan) -> PaintedPair | None:
+        if last_stamp and scan.stamp_ns <= last_stamp[0]:
+            return None  # repeated or backwards stamps are skipped, as in semmap build
+        last_stamp[:] = [scan.stamp_ns]
+        seg = segmentation(scan)
+        raw = raw_painter.paint(scan, odom, seg)
+        filtered = painter_on.paint(scan, odom, seg)
+        if odom is not None:
+            odom.trim(scan.stamp_ns - 1_000_000_000)
+        return PaintedPair(scan, raw, filtered, painter_on.last_view, seg)
+
+    def ready(t_now: int, t_scan: int, scan: Scan) -> bool:
+        # odometry must reach past the sweep and the latest image it may be paired with (motion compensation)
+        odom_ok = odom is None or (odom.last_ns is not None and odom.last_ns >= end_ns(scan) + max_offset)
+        return odom_ok or t_now - t_scan > 2_000_000_000 or len(pending) > 64
+
+    topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
+    total = message_count(tinfo.bag, tinfo.topics.scan)
+    done = 0
+    try:
+        for topic, t_bag, msg in iter_messages(tinfo.bag, topics):
+            if topic == tinfo.topics.scan:
+                scan = scan_from_msg(msg)
+                if scan.ranges.size and np.isfinite(scan.angle_increment) and scan.angle_increment != 0:
+                    pending.append((t_bag, scan))
+                done += 1
+                if progress is not None and done % 50 == 0:
+                    progress(done, total)
+            elif odom is not None:
+                stamp, _, _, pose = odometry_from_msg(msg)
+                odom.add(stamp, pose)
+            while pending and ready(t_bag, *pending[0]):
+                pair = process(pending.popleft()[1])
+                if pair is not None:
+                    yield pair
+        while pending:
+            pair = process(pending.popleft()[1])
+            if pair is not None:
+                yield pair
+        if progress is not None:
+            progress(total, total)
+    finally:
+        frames.close()
+
+
+def _beam_rows(pair: PaintedPair) -> dict[str, NDArray[Any]]:
+    scan = pair.scan
+    n = scan.ranges.size
+    r = scan.ranges.astype(np.float64)
+    a = scan.angles
+    hit = pair.raw.hit
+    x = np.where(hit, r * np.cos(a), np.nan)
+    y = np.where(hit, r * np.sin(a), np.nan)
+    return {
+        "stamp_ns": np.full(n, scan.stamp_ns, np.int64),
+        "beam": np.arange(n, dtype=np.int32),
+        "x": x.astype(np.float32),
+        "y": y.astype(np.float32),
+        "class_raw": pair.raw.class_id,
+        "mobility_raw": pair.raw.mobility,
+        "class": pair.filtered.class_id,
+        "mobility": pair.filtered.mobility,
+    }
+
+
+def export_painted(
+    tour: str | Path,
+    out: str | Path,
+    config: str | Path | BuildConfig | None = None,
+    calibration: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    fmt: str | None = None,
+    force: bool = False,
+    progress: ProgressFn | None = None,
+    on_pair: Callable[[PaintedPair], None] | None = None,
+) -> PaintExport:
+    """Write the painted scans of ``tour`` to ``out``: one row per beam (see :data:`EXPORT_COLUMNS`).
+
+    ``fmt`` is ``"csv"`` or ``"npz"`` (default: from the suffix of ``out``). In CSV the class
+    is a name (empty for none) and the mobility a name (``unknown``, ``static``,
+    ``semi_static``, ``dynamic``); in NPZ they are the class index into ``class_names``
+    (-1 for none) and the mobility value (0-3).
+
+    ``on_pair`` sees every :class:`PaintedPair` as it is written (to pick a frame to draw,
+    say, without reading the tour twice).
+    """
+    out = Path(out)
+    fmt = (fmt or out.suffix.lstrip(".")).lower()
+    if fmt not in ("csv", "npz"):
+        raise ConfigError(f"{out}: cannot tell the format; name the file .csv or .npz (or pass fmt)")
+    if out.exists() and not force:
+        raise OutputExistsError(f"{out}: exists (use --force to replace it)")
+    if not out.parent.is_dir():
+        raise ConfigError(f"{out.parent}: no such folder")
+    cols: dict[str, list[NDArray[Any]]] = {c: [] for c in EXPORT_COLUMNS}
+    scans = painted = relabelled = worst = beams = 0
+    names: tuple[str, ...] = ()
+    tmp = out.with_name(f".{out.name}.part")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            if fmt == "csv":
+                fh.write(",".join(EXPORT_COLUMNS) + "\n")
+            for pair in iter_painted(tour, config, calibration, overrides, progress):
+                if on_pair is not None:
+                    on_pair(pair)
+                rows = _beam_rows(pair)
+                names = pair.raw.class_names
+                if fmt == "csv":
+                    fh.write(_csv_chunk(rows, names))
+                else:
+                    for k, v in rows.items():
+                        cols[k].append(v)
+                scans += 1
+                beams += rows["beam"].size
+                painted += pair.view is not None
+                n = pair.relabelled
+                relabelled += n
+                worst = max(worst, n)
+        if scans == 0:
+            raise BagError(f"{tour}: no usable scans")
+        if fmt == "npz":
+            data = {k: np.concatenate(v) for k, v in cols.items()}
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **data, class_names=np.asarray(names if names else ("",), dtype=str))
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    log.info("%s: %d scans, %d beams; the occlusion filter relabelled %d points", out, scans, beams, relabelled)
+    return PaintExport(out, fmt, scans, beams, painted, relabelled, worst, names)
+
+
+_MOBILITY_NAMES = np.array([m.label for m in Mobility])
+
+
+def _csv_chunk(rows: dict[str, NDArray[Any]], names: tuple[str, ...]) -> str:
+    """One scan's rows as CSV text: classes and mobilities by name, no return as empty x, y."""
+    cls_names = np.array([*names, ""], dtype=object)  # index -1 → ""
+    x, y = rows["x"], rows["y"]
+    xs = np.where(np.isfinite(x), np.char.mod("%.4f", x), "")
+    ys = np.where(np.isfinite(y), np.char.mod("%.4f", y), "")
+    stamp = str(int(rows["stamp_ns"][0]))
+    cols = [np.full(x.size, stamp, dtype=object), rows["beam"].astype(str), xs, ys,
+            cls_names[rows["class_raw"]], _MOBILITY_NAMES[rows["mobility_raw"]],
+            cls_names[rows["class"]], _MOBILITY_NAMES[rows["mobility"]]]
+    lines = [",".join(map(str, r)) for r in zip(*cols)]
+    return "\n".join(lines) + "\n"

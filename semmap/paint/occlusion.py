@@ -1,0 +1,258 @@
+"""The background-line occlusion filter: points the camera cannot see lose the mask's label.
+
+**The fault.** The LiDAR and the camera look from different places (on many robots the
+LiDAR sits at a front corner, the camera at the front centre). A wall point the LiDAR sees
+past the edge of a person can lie, from the camera's viewpoint, *behind* that person: it
+projects onto the person's mask and is painted ``dynamic``. In the image it shows up as a
+second, farther line of points inside the mask. The research's rule: a solid object
+reprojects at most one line, and only background points are hit, so within a mask only
+the nearer line keeps the mask's label.
+
+**The filter** decides visibility from the camera's own viewpoint, in the LiDAR plane
+(points at the image time, in the base frame, seen from the camera centre projected into
+that plane). A point ``p`` on a mask with label ``L`` is *hidden* when LiDAR points of the
+same mask lie nearer the camera on the same viewing ray:
+
+1. **Same ray.** A point ``q`` labelled ``L`` whose bearing from the camera is within
+   ``q``'s angular footprint of ``p``'s and which is nearer by at least the depth margin
+   (``depth_margin + depth_margin_rel · distance``, which absorbs range noise and the depth
+   of the object itself). The footprint is the surface patch a LiDAR beam samples (one beam
+   spacing at ``q``'s range, seen from the camera) widened by ``ray_width``, so the gaps
+   between the scan points of a continuous surface do not let background points through.
+2. **Bridged gaps.** Objects seen only in parts (a person's two legs, a table's legs) leave
+   wider gaps at LiDAR height. ``p`` is also hidden when the nearest such nearer ``L`` points
+   on its left and on its right are at most ``max_gap`` apart *and* their pixels and ``p``'s
+   lie on one connected region of the mask: the object that covers ``p``'s pixel is the one
+   they belong to.
+3. **Past the outermost point.** Above LiDAR height an object reaches past its legs (a
+   chair's seat, a table's top, a person's arms), and a mask spills a few pixels past its
+   object. ``p`` is also hidden when a nearer ``L`` point lies at most ``overhang`` to the
+   side of ``p``'s ray or projects at most ``edge_px`` columns away, and the mask covers
+   ``p``'s pixel row between the two (a stricter test than connected regions: one-sided
+   evidence is weaker).
+
+4. **A background line across the mask.** ``p``'s surface (neighbouring scan points with
+   steps under ``line_step``) runs on to points off the mask, so it is structure the mask
+   overlaps, and a point of the mask stands in front of it by at least
+   ``line_depth_margin`` (less than the depth margin: a bed pushed against a wall), on the
+   same connected region of the mask. An object's own far side does not run off its mask.
+
+Hidden points become ``unknown`` (not ``static``: the camera says nothing about them). The
+occluding points must carry the same label as ``p``: the label image shows one surface per
+pixel, and a nearer point of another class says nothing about what ``p``'s pixel shows.
+Points that project below or above the image still serve as occluders (their label is read
+at the image's edge in their column): an object close to the robot can be out of view at
+LiDAR height and still fill the image above it.
+
+Several objects, overlapping or not, are handled per label; the cost is a (masked points ×
+labelled points) comparison per scan, a few hundred microseconds.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import PaintConfig
+
+__all__ = ["OcclusionParams", "hidden_points"]
+
+
+@dataclass(frozen=True)
+class OcclusionParams:
+    """The filter's parameters (``paint.occlusion_*`` in the config)."""
+
+    depth_margin: float = 0.25  # m
+    depth_margin_rel: float = 0.03  # share of the point's distance from the camera
+    ray_width: float = math.radians(0.5)  # rad, added to each point's footprint
+    max_gap: float = 2.2  # m, widest gap between two occluding points that is bridged
+    edge_px: float = 8.0  # px a mask may spill past its object's outermost point
+    overhang: float = 0.3  # m an object may reach past its outermost point at LiDAR height
+    line_step: float = 0.06  # m, largest step between neighbouring points of one surface
+    line_depth_margin: float = 0.15  # m, depth margin in front of a background line
+
+    @classmethod
+    def from_config(cls, cfg: PaintConfig) -> OcclusionParams:
+        return cls(cfg.occlusion_depth_margin, cfg.occlusion_depth_margin_rel,
+                   math.radians(cfg.occlusion_ray_width_deg), cfg.occlusion_max_gap,
+                   cfg.occlusion_edge_px, cfg.occlusion_overhang, cfg.occlusion_line_step,
+                   cfg.occlusion_line_depth_margin)
+
+
+def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDArray[np.intp],
+                  uv: NDArray[np.float64], targets: NDArray[np.bool_], footprint: NDArray[np.float64],
+                  label_image: NDArray[np.integer], p: OcclusionParams) -> NDArray[np.bool_]:
+    """Which points are hidden from the camera by nearer points of the same mask.
+
+    ``xy`` (K, 2): the points in the LiDAR plane (base frame, at the image time), every point
+    in front of the camera whose column is in the image; ``eye`` (2,): the camera centre in
+    the same frame; ``labels`` (K,): the label value under each point (0: no mask; read at the
+    image's edge for points above or below it); ``uv`` (K, 2): their pixels (column, row),
+    clamped to the image; ``targets`` (K,): the points to judge (inside the image, on a
+    mask); ``footprint`` (K,): each point's lateral extent, m (the LiDAR beam spacing at its
+    range); ``label_image``: the segmentation. Returns a (K,) mask, true only for targets.
+    """
+    k = xy.shape[0]
+    hidden = np.zeros(k, bool)
+    t = np.nonzero(targets & (labels > 0))[0]
+    if t.size == 0:
+        return hidden
+    o = np.nonzero(labels > 0)[0]
+    o = o[np.isin(labels[o], np.unique(labels[t]))]
+    if o.size < 2:
+        return hidden
+    masks = _Components(label_image, uv, labels)
+    rel = xy - eye
+    dist = np.hypot(rel[:, 0], rel[:, 1])
+    bearing = np.arctan2(rel[:, 1], rel[:, 0])
+    d_t = dist[t]
+    limit = d_t - (p.depth_margin + p.depth_margin_rel * d_t)
+    nearer = (labels[t][:, None] == labels[o][None, :]) & (dist[o][None, :] < limit[:, None])
+    same = labels[t][:, None] == labels[o][None, :]
+    if not (same & (dist[o][None, :] < (d_t - min(p.line_depth_margin, p.depth_margin))[:, None])).any():
+        return hidden
+    da = bearing[o][None, :] - bearing[t][:, None]
+    da = (da + np.pi) % (2 * np.pi) - np.pi
+    # runs: neighbouring scan points of one surface; a run nearer than the points beside it is a foreground
+    # object in the LiDAR's eyes (a chair's rear leg seen through the gap between the front ones), which
+    # only the same-ray test may hide
+    step = np.hypot(*np.diff(xy, axis=0).T) if k > 1 else np.zeros(0)
+    brk = step > np.maximum(p.line_step, 3.0 * footprint[1:]) if p.line_step > 0 else np.ones(step.size, bool)
+    run = np.concatenate([[0], np.cumsum(brk)])
+    first = np.concatenate([[0], np.nonzero(brk)[0] + 1])
+    last = np.concatenate([np.nonzero(brk)[0], [k - 1]])
+    near_l = np.concatenate([[np.inf], dist[last[:-1]]])  # the point before each run
+    near_r = np.concatenate([dist[first[1:]], [np.inf]])  # the point after it
+    jump = p.line_step if p.line_step > 0 else 0.06
+    foreground = (near_l > dist[first] + jump) & (near_r > dist[last] + jump)
+    free = ~foreground[run[t]]
+    # 1. the same viewing ray: within the occluder's footprint (half a beam spacing each side), widened
+    half = 0.5 * (footprint[o] / np.maximum(dist[o], 1e-6) + p.ray_width)
+    direct = (nearer & (np.abs(da) <= half[None, :])).any(axis=1)
+    hid_t = direct.copy()
+    # 2. a bridged gap: the nearest nearer occluders left and right, close together, joined by the mask
+    if p.max_gap > 0:
+        # occluders whose lateral offset from p's ray (at their own distance) is within max_gap
+        reach = nearer & (dist[o][None, :] * np.abs(np.sin(da)) <= p.max_gap)
+        left = np.where(reach & (da < 0), da, -np.inf)
+        right = np.where(reach & (da > 0), da, np.inf)
+        i_l, i_r = left.argmax(axis=1), right.argmin(axis=1)
+        rows = np.arange(t.size)
+        cand = ~direct & free & np.isfinite(left[rows, i_l]) & np.isfinite(right[rows, i_r])
+        if cand.any():
+            c = np.nonzero(cand)[0]
+            ol, orr = o[i_l[c]], o[i_r[c]]
+            close = np.hypot(*(xy[ol] - xy[orr]).T) <= p.max_gap
+            c, ol, orr = c[close], ol[close], orr[close]
+            if c.size:
+                hid_t[c] = masks.row_joined(t[c], ol) & masks.row_joined(t[c], orr)
+    # 3. the mask past the object's outermost point (an overhang above LiDAR height, or the mask's spill):
+    #    a nearer occluder on one side only, a little aside, joined to p by the mask
+    if (p.edge_px > 0 or p.overhang > 0) and not hid_t.all():
+        du = np.abs(uv[o, 0][None, :] - uv[t, 0][:, None])
+        aside = nearer & ((du <= p.edge_px) | (dist[o][None, :] * np.abs(np.sin(da)) <= p.overhang))
+        du = np.where(aside, du, np.inf)
+        j = du.argmin(axis=1)
+        c = np.nonzero(~hid_t & free & np.isfinite(du[np.arange(t.size), j]))[0]
+        if c.size:
+            hid_t[c] = masks.row_joined(t[c], o[j[c]])
+    # 4. a background line across the mask: p's surface runs on, without a depth jump, to points off the
+    #    mask, and a point of the mask stands in front of it (by less than the depth margin: a bed
+    #    against a wall); an object's own far side does not run off its mask
+    if p.line_step > 0 and not hid_t.all():
+        off = np.zeros(int(run[-1]) + 1, bool)
+        off[run[labels == 0]] = True
+        off = _through_shadows(off, xy, dist, first, last, p.max_gap)
+        c = np.nonzero(~hid_t & off[run[t]])[0]
+        if c.size:
+            front = same[c] & (
+                dist[o][None, :] < d_t[c][:, None] - p.line_depth_margin) & (
+                dist[o][None, :] * np.abs(np.sin(da[c])) <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
+            score = np.where(front, np.abs(da[c]), np.inf)
+            j = score.argmin(axis=1)
+            has = np.isfinite(score[np.arange(c.size), j])
+            c, j = c[has], j[has]
+            if c.size:
+                hid_t[c] = masks.joined(t[c], o[j])
+    hidden[t] = hid_t
+    return hidden
+
+
+class _Components:
+    """Whether two points' pixels lie on one connected region of their mask (computed per label, lazily)."""
+
+    _last: tuple[weakref.ReferenceType, dict[int, NDArray[np.int32]]] | None = None
+
+    def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
+        self.image = label_image
+        h, w = label_image.shape
+        self.col = np.clip(np.rint(uv[:, 0]).astype(np.intp), 0, w - 1)
+        self.row = np.clip(np.rint(uv[:, 1]).astype(np.intp), 0, h - 1)
+        self.labels = labels
+        # a camera frame is painted with several scans: keep its regions while the same image comes back
+        last = _Components._last
+        if last is not None and last[0]() is label_image:
+            self._cc = last[1]
+        else:
+            self._cc = {}
+            _Components._last = (weakref.ref(label_image), self._cc)
+
+    def _of(self, value: int) -> NDArray[np.int32]:
+        cc = self._cc.get(value)
+        if cc is None:
+            _, cc = cv2.connectedComponents((self.image == value).view(np.uint8) if self.image.dtype == bool
+                                            else (self.image == value).astype(np.uint8), connectivity=8)
+            self._cc[value] = cc
+        return cc
+
+    def row_joined(self, a: NDArray[np.intp], b: NDArray[np.intp], min_share: float = 0.8) -> NDArray[np.bool_]:
+        """Whether the mask covers ``min_share`` of a's pixel row between a's column and b's."""
+        s = np.linspace(0.0, 1.0, 24)
+        cols = np.rint(self.col[a][:, None] + (self.col[b] - self.col[a])[:, None] * s[None, :]).astype(np.intp)
+        on = self.image[self.row[a][:, None], cols] == self.labels[a][:, None]
+        return on.mean(axis=1) >= min_share
+
+    def joined(self, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
+        out = np.zeros(a.size, bool)
+        for value in np.unique(self.labels[a]):
+            m = self.labels[a] == value
+            cc = self._of(int(value))
+            ca = cc[self.row[a[m]], self.col[a[m]]]
+            out[m] = (ca > 0) & (ca == cc[self.row[b[m]], self.col[b[m]]])
+        return out
+
+
+def _through_shadows(off: NDArray[np.bool_], xy: NDArray[np.float64], dist: NDArray[np.float64],
+                     first: NDArray[np.intp], last: NDArray[np.intp], max_gap: float) -> NDArray[np.bool_]:
+    """Carry "runs off the mask" across the shadows of nearer objects.
+
+    A wall behind a bed's legs reaches the LiDAR in pieces, cut by the legs' shadows. A run
+    counts as off the mask when the run beyond a nearer run (the shadow's caster) continues it
+    within ``max_gap`` and is off the mask. Repeated until nothing changes (a few passes).
+    """
+    n = off.size
+    if n < 3:
+        return off
+    out = off.copy()
+    for _ in range(4):
+        changed = False
+        for r in range(n):
+            if out[r]:
+                continue
+            for side in (-1, 1):
+                mid, nxt = r + side, r + 2 * side
+                if not (0 <= nxt < n) or not out[nxt]:
+                    continue
+                a, b = (first[r], last[nxt]) if side < 0 else (last[r], first[nxt])
+                nearer = (dist[first[mid]:last[mid] + 1] < min(dist[a], dist[b])).all()
+                if nearer and np.hypot(*(xy[a] - xy[b])) <= max_gap:
+                    out[r] = changed = True
+                    break
+        if not changed:
+            break
+    return out

@@ -95,3 +95,17 @@ def test_ambiguous_or_missing_topics_name_the_candidates(tmp_path):
         resolve_topics(cfg, types, tmp_path, {}, consumes="labels")
     cfg = BuildConfig.model_validate({"topics": {"scan": "/rear/scan", "odometry": "none"}})
     assert resolve_topics(cfg, types, tmp_path, {}, consumes="labels").odometry is None
+
+
+def test_segmentation_files_in_a_config_are_relative_to_it(tmp_path):
+    from semmap.io.tour import load_build_config
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "build.yaml").write_text("segmentation: {backend: folder, folder: labels, cache_dir: /abs/cache}\n")
+    cfg, base = load_build_config(site / "build.yaml")
+    assert cfg.segmentation.folder == site.resolve() / "labels"
+    assert str(cfg.segmentation.cache_dir) == "/abs/cache"
+    # a path given as an override (the command line) stays as given: relative to the working directory
+    cfg, _ = load_build_config(site / "build.yaml", {"segmentation": {"folder": "other"}})
+    assert str(cfg.segmentation.folder) == "other"

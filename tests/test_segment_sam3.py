@@ -1,6 +1,9 @@
 """SAM 3 with a tiny random-weight config: the cached-embedding path gives the same masks as the
-uncached one, the image is encoded once per frame whatever the number of prompts, and the input
-resolution shrinks to fit the memory budget."""
+uncached one, the image is encoded once per frame whatever the number of prompts, painting at mask
+resolution equals upsampling every mask (nearest) first, a prompt that keeps nothing skips the mask
+head, and the input resolution shrinks to fit the memory budget."""
+
+import math
 
 import numpy as np
 import pytest
@@ -48,8 +51,75 @@ def test_the_image_is_encoded_once_per_frame_and_the_decoder_once_per_prompt(tin
     a = seg.segment(_frame(0, 1))
     b = seg.segment(_frame(0, 1))  # the same frame again: its embedding is reused
     seg.segment(_frame(1, 2))
-    assert seg.stats == {"embeddings": 2, "embedding_reuses": 1, "decoder_runs": 3 * len(PROMPTS)}
+    assert seg.stats == {"embeddings": 2, "embedding_reuses": 1, "decoder_runs": 3 * len(PROMPTS),
+                         "mask_heads": 3 * len(PROMPTS)}  # random weights: every prompt keeps some query
     assert np.array_equal(a.label, b.label)
+
+
+def _full_resolution_reference(seg, img):
+    """The per-prompt merge this backend had before: every kept mask upsampled to image size, then
+    each pixel takes its best-scoring covering instance (here with nearest-exact upsampling)."""
+    import torch
+
+    h, w = img.data.shape[:2]
+    label = np.zeros((h, w), np.uint16)
+    conf = np.zeros((h, w), np.float32)
+    t = seg.cfg.mask_threshold
+    with torch.inference_mode():
+        for k, (_, mask, ids) in enumerate(seg._text, start=1):
+            out = seg._model(pixel_values=seg.pixel_values(img.data), input_ids=ids, attention_mask=mask)
+            scores = out.pred_logits[0].sigmoid() * out.presence_logits[0].sigmoid()
+            keep = torch.nonzero(scores >= seg.cfg.conf).flatten()
+            if keep.numel() == 0:
+                continue
+            keep = keep[torch.argsort(scores[keep], descending=True)][: seg.cfg.max_det]
+            masks = torch.nn.functional.interpolate(out.pred_masks[0, keep][None].float(), size=(h, w),
+                                                    mode="nearest-exact")[0]
+            on = masks > math.log(t / (1 - t))
+            first = on.to(torch.uint8).argmax(0).numpy()
+            best = scores[keep].numpy()[first]
+            upd = on.any(0).numpy() & (best > conf)
+            label[upd] = k
+            conf[upd] = best[upd]
+    return label, conf
+
+
+@pytest.mark.parametrize("mask_threshold,max_det", [(0.5, 300), (0.4999, 3)])
+def test_painting_at_mask_resolution_equals_upsampling_every_mask_first(tiny_sam3, mask_threshold, max_det):
+    from semmap.segment.sam3 import Sam3Segmenter
+
+    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, conf=0.0,
+                                           mask_threshold=mask_threshold, max_det=max_det))
+    img = _frame(3)
+    res = seg.segment(img)
+    label, conf = _full_resolution_reference(seg, img)
+    assert len(np.unique(label)) >= 3
+    assert np.array_equal(res.label, label)
+    assert np.array_equal(res.confidence, conf)
+
+
+def test_a_prompt_that_keeps_no_query_skips_the_mask_head(tiny_sam3):
+    import torch
+
+    from semmap.segment.sam3 import Sam3Segmenter
+
+    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, conf=1.0))
+    img = _frame()
+    res = seg.segment(img)
+    assert seg.stats["decoder_runs"] == len(PROMPTS) and seg.stats["mask_heads"] == 0
+    assert not res.label.any() and np.array_equal(res.label, seg.segment_uncached(img).label)
+    # a threshold between the prompts' best scores: some prompts keep queries, the others skip the head
+    with torch.inference_mode():
+        embed = seg.image_embedding(img.data)
+        best = sorted(float(seg._decode(embed, text, mask)[0].max()) for text, mask, _ in seg._text)
+    assert best[0] < best[-1]
+    seg.cfg = seg.cfg.model_copy(update={"conf": (best[0] + best[-1]) / 2})
+    seg.stats["mask_heads"] = 0
+    cached = seg.segment(img)
+    assert 0 < seg.stats["mask_heads"] < len(PROMPTS)
+    assert cached.label.any()
+    assert np.array_equal(cached.label, seg.segment_uncached(img).label)
+    assert np.array_equal(cached.confidence, seg.segment_uncached(img).confidence)
 
 
 def test_input_resolution_scales_to_the_memory_budget(tiny_sam3):

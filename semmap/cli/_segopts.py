@@ -52,15 +52,5 @@ def segmentation_config(args: argparse.Namespace, spec: str | None) -> Any:
     over = segmentation_overrides(args)
     if spec is not None:
         over.update(parse_backend_spec(spec))
-    cfg, base = load_build_config(args.config, {"segmentation": over})
-    seg = cfg.segmentation
-    # relative paths in a config file are relative to that file
-    if args.config is not None:
-        upd = {}
-        for key in ("model", "folder", "cache_dir", "classes_file"):
-            v = getattr(seg, key)
-            if v is not None and not Path(v).is_absolute() and key not in over:
-                upd[key] = base / v
-        if upd:
-            seg = seg.model_copy(update=upd)
-    return seg
+    cfg, _ = load_build_config(args.config, {"segmentation": over})  # paths in the file: relative to it
+    return cfg.segmentation

@@ -70,6 +70,7 @@ class Tour:
 def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> tuple[BuildConfig, Path]:
     """The build config from a YAML file (or defaults); returns it and the folder relative paths start from."""
     data: dict[str, Any] = {}
+    file_seg: dict[str, Any] = {}
     base = Path.cwd()
     source = "config"
     if path is not None:
@@ -77,6 +78,7 @@ def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None 
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping at the top level")
         data = loaded or {}
+        file_seg = data.get("segmentation") or {} if isinstance(data.get("segmentation"), dict) else {}
         base = Path(path).resolve().parent
         source = str(path)
     if overrides:
@@ -84,6 +86,15 @@ def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None 
 
         data = merge_overrides(data, overrides)
     cfg = load_model(BuildConfig, data, source)
+    # the segmentation's files named in the config file are relative to it, as the calibration is
+    # (paths given as overrides, e.g. on the command line, stay relative to the working directory)
+    seg = cfg.segmentation
+    over = (overrides or {}).get("segmentation") or {}
+    fixed = {k: base / Path(getattr(seg, k)).expanduser() for k in ("model", "folder", "cache_dir", "classes_file")
+             if k in file_seg and k not in over and getattr(seg, k) is not None
+             and not Path(getattr(seg, k)).expanduser().is_absolute()}
+    if fixed:
+        cfg = cfg.model_copy(update={"segmentation": seg.model_copy(update=fixed)})
     return cfg, base
 
 

@@ -13,7 +13,10 @@ Inference follows the research's architecture:
 2. **The light decoder runs once per class prompt** (DETR encoder/decoder and mask head, on
    the cached embedding and the prompt's text embedding, itself computed once at load).
    Prompts run one after another, so peak memory does not grow with their number; each
-   prompt's instances are merged into the label image before the next runs.
+   prompt's instances are merged into the label image before the next runs. The mask head
+   (a third of a prompt's FLOPs at 1008 px, nearly half at 504 px) runs only when some query
+   of the prompt is kept (scores at least ``conf``): a class absent from the frame costs the
+   DETR stages alone.
 3. **The input resolution scales to a memory budget**: the largest square side, a multiple
    of twice the patch size and at most ``segmentation.imgsz`` (default: the model's own
    size, 1008 for SAM 3), whose estimated peak activation memory
@@ -23,7 +26,23 @@ Each prompt names one class (``segmentation.prompts``, default the names of
 ``segmentation.class_list``): label value k is prompt k. A query's score is
 ``sigmoid(logit) · sigmoid(presence)`` as in ``Sam3Processor.post_process_instance_segmentation``;
 queries scoring at least ``segmentation.conf`` paint their mask (``mask_threshold``) where no
-better-scoring instance already did.
+better-scoring instance already did. Painting happens at the masks' own resolution (4× the token
+grid: 288² for SAM 3 at 1008 px) and the frame's label and confidence images are resized to the
+image once, nearest-neighbour (``nearest-exact``: pixel centres aligned). This is exactly what
+upsampling every kept mask to the image with ``nearest-exact`` and painting there would give; it
+differs from upsampling the mask logits bilinearly (as Sam3Processor does) only along mask
+boundaries, which are snapped to the mask grid (by at most half a mask pixel: about ±1 px for
+SAM 3 at 1008 px on a 640×480 image).
+
+What a prompt costs beside the embedding is SAM 3's own split: counted with torch's
+``FlopCounterMode`` (:func:`flop_split`), SAM 3's image embedding costs 13.4× one prompt's
+decoder run at its native 1008 px (5614 vs 420 GFLOP: the DETR encoder's attention over the
+72² tokens grows with their number squared, like the ViT's global layers), 20.7× at 504 px; so
+time(10 prompts) / time(1 prompt) cannot go below 1.63 at 1008 px (1.41 at 504 px) while every
+prompt runs its mask head, even if time followed FLOPs (on CPU the decoder's small operations run
+well below the ViT's FLOP rate). The only prompt-independent step left in a decoder run, the
+first DETR encoder layer's self-attention (7 % of the run's FLOPs), is inside
+``Sam3DetrEncoder.forward`` and is not reused.
 
 Sam3Processor itself needs torchvision for its image processor; the preprocessing here is
 its equivalent (bilinear resize to a square, scale to [0, 1], normalise by the folder's
@@ -52,7 +71,7 @@ from ..records import Image, Segmentation
 from .base import register
 from .common import require_model, rgb_array
 
-__all__ = ["Sam3Segmenter", "estimate_activation_mb", "save_random_model"]
+__all__ = ["Sam3Segmenter", "estimate_activation_mb", "flop_split", "random_config", "save_random_model"]
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +132,8 @@ class Sam3Segmenter:
         self._embed_key: str | None = None
         self._embed: Any = None
         self._side: int | None = None
-        self.stats = {"embeddings": 0, "embedding_reuses": 0, "decoder_runs": 0}
+        self._index: dict[tuple[int, int], NDArray[np.intp]] = {}
+        self.stats = {"embeddings": 0, "embedding_reuses": 0, "decoder_runs": 0, "mask_heads": 0}
 
     # -- loading -----------------------------------------------------------------------------
     def _load(self) -> Any:
@@ -143,8 +163,8 @@ class Sam3Segmenter:
         self._queries = int(model.config.detr_decoder_config.num_queries)
         self._detr_hidden = int(model.config.detr_decoder_config.hidden_size)
         self._patch = int(self._vit["patch_size"])
-        native = int(self._vit["image_size"] if isinstance(self._vit["image_size"], int) else self._vit["image_size"][0])
-        self._native_side = native
+        size = self._vit["image_size"]
+        self._native_side = int(size if isinstance(size, int) else size[0])
         pre = self.path / "preprocessor_config.json"
         mean, std = [0.5, 0.5, 0.5], [0.5, 0.5, 0.5]
         if pre.is_file():
@@ -222,56 +242,105 @@ class Sam3Segmenter:
         self.stats["embeddings"] += 1
         return self._embed
 
-    def _merge(self, out: Any, k: int, label: NDArray[np.uint16], conf: NDArray[np.float32]) -> None:
-        """Paint one prompt's instances (label value k) where they beat what is there."""
+    def _keep(self, pred_logits: Any, presence_logits: Any) -> tuple[Any, Any]:
+        """Query scores (``sigmoid(logit) · sigmoid(presence)``) and the queries kept: at least ``conf``,
+        at most ``max_det`` of them, best first."""
         torch = self._torch
-        scores = out.pred_logits[0].sigmoid()
-        if out.presence_logits is not None:
-            scores = scores * out.presence_logits[0].sigmoid()
+        scores = pred_logits[0].float().sigmoid()
+        if presence_logits is not None:
+            scores = scores * presence_logits[0].float().sigmoid()
         keep = torch.nonzero(scores >= self.cfg.conf).flatten()
+        keep = keep[torch.argsort(scores[keep], descending=True)][: self.cfg.max_det]
+        return scores, keep
+
+    def _decode(self, embed: Any, text: Any, mask: Any) -> tuple[Any, Any, Any]:
+        """One prompt's decoder run on a cached image embedding: ``Sam3Model.forward``'s text-prompt
+        path (DETR encoder, DETR decoder, scoring, mask head) through the model's own modules, except
+        that the mask head only runs when a query is kept (the box head, unused here, never does).
+        Returns the scores, the kept queries and the mask logits (None when nothing is kept)."""
+        model = self._model
+        fpn = embed.fpn_hidden_states[:-1]
+        pos = embed.fpn_position_encoding[:-1]
+        features = text.pooler_output
+        text_mask = mask.bool()
+        enc = model.detr_encoder(vision_features=[fpn[-1]], text_features=features, vision_pos_embeds=[pos[-1]],
+                                 text_mask=text_mask)
+        dec = model.detr_decoder(vision_features=enc.last_hidden_state, text_features=enc.text_features,
+                                 vision_pos_encoding=enc.pos_embeds_flattened, text_mask=text_mask,
+                                 spatial_shapes=enc.spatial_shapes)
+        logits = model.dot_product_scoring(decoder_hidden_states=dec.intermediate_hidden_states,
+                                           text_features=enc.text_features, text_mask=text_mask).squeeze(-1)[-1]
+        scores, keep = self._keep(logits, dec.presence_logits[-1])
+        if keep.numel() == 0:
+            return scores, keep, None
+        self.stats["mask_heads"] += 1
+        masks = model.mask_decoder(decoder_queries=dec.intermediate_hidden_states[-1], backbone_features=list(fpn),
+                                   encoder_hidden_states=enc.last_hidden_state, prompt_features=features,
+                                   prompt_mask=text_mask).pred_masks
+        return scores, keep, masks
+
+    def _paint(self, masks: Any, scores: Any, keep: Any, k: int, canvas: list[Any]) -> None:
+        """Paint one prompt's kept instances (label value k) at mask resolution, where they beat what
+        is there. ``canvas`` is [label, confidence] at mask resolution, made on first use."""
+        torch = self._torch
         if keep.numel() == 0:
             return
-        keep = keep[torch.argsort(scores[keep], descending=True)][: self.cfg.max_det]
-        h, w = label.shape
-        masks = out.pred_masks[0, keep].float()
-        masks = torch.nn.functional.interpolate(masks[None], size=(h, w), mode="bilinear", align_corners=False)[0]
         t = self.cfg.mask_threshold
-        on = masks > (math.log(t / (1 - t)) if 0 < t < 1 else (-math.inf if t <= 0 else math.inf))  # logit space
-        # queries are sorted best first: each pixel takes the first query whose mask covers it
-        first = on.to(torch.uint8).argmax(0).cpu().numpy()
-        covered = on.any(0).cpu().numpy()
-        best = scores[keep].float().cpu().numpy()[first]
-        upd = covered & (best > conf)
+        thr = math.log(t / (1 - t)) if 0 < t < 1 else (-math.inf if t <= 0 else math.inf)  # logit space
+        on = masks[0, keep] > thr
+        # the best-scoring kept instance covering each pixel (the first of the queries sorted best first)
+        best = torch.where(on, scores[keep].view(-1, 1, 1), torch.zeros((), dtype=scores.dtype)).amax(0).cpu().numpy()
+        if not canvas:
+            canvas += [np.zeros(best.shape, np.uint16), np.zeros(best.shape, np.float32)]
+        label, conf = canvas
+        upd = best > conf
         label[upd] = k
         conf[upd] = best[upd]
 
+    def _nearest(self, n_in: int, n_out: int) -> NDArray[np.intp]:
+        """Source indices of torch's ``nearest-exact`` resize (pixel centres aligned) along one axis."""
+        key = (n_in, n_out)
+        if key not in self._index:
+            src = self._torch.arange(n_in, dtype=self._torch.float32).view(1, 1, n_in, 1)
+            idx = self._torch.nn.functional.interpolate(src, size=(n_out, 1), mode="nearest-exact")
+            self._index[key] = idx.view(-1).to(self._torch.int64).numpy()
+        return self._index[key]
+
+    def _finish(self, canvas: list[Any], shape: tuple[int, int], stamp_ns: int) -> Segmentation:
+        """The frame's label and confidence at image size: the mask-resolution canvas, resized once."""
+        if not canvas:
+            return Segmentation(stamp_ns, np.zeros(shape, np.uint16), self.names, np.zeros(shape, np.float32))
+        label, conf = canvas
+        ys = self._nearest(label.shape[0], shape[0])[:, None]
+        xs = self._nearest(label.shape[1], shape[1])[None, :]
+        return Segmentation(stamp_ns, label[ys, xs], self.names, conf[ys, xs])
+
     def segment(self, image: Image) -> Segmentation:
         """Cached path: one image embedding, then the decoder once per prompt."""
-        model = self._load()
+        self._load()
         rgb = rgb_array(image, self.name)
         embed = self.image_embedding(rgb)
-        label = np.zeros(rgb.shape[:2], np.uint16)
-        conf = np.zeros(rgb.shape[:2], np.float32)
+        canvas: list[Any] = []
         with self._torch.inference_mode():
             for k, (text, mask, _) in enumerate(self._text, start=1):
-                out = model(vision_embeds=embed, text_embeds=text, attention_mask=mask)
+                scores, keep, masks = self._decode(embed, text, mask)
                 self.stats["decoder_runs"] += 1
-                self._merge(out, k, label, conf)
-                del out
-        return Segmentation(image.stamp_ns, label, self.names, conf)
+                self._paint(masks, scores, keep, k, canvas)
+                del masks
+        return self._finish(canvas, rgb.shape[:2], image.stamp_ns)
 
     def segment_uncached(self, image: Image) -> Segmentation:
         """Reference path: the full model (image encoder included) once per prompt, nothing reused."""
         model = self._load()
         rgb = rgb_array(image, self.name)
-        label = np.zeros(rgb.shape[:2], np.uint16)
-        conf = np.zeros(rgb.shape[:2], np.float32)
+        canvas: list[Any] = []
         with self._torch.inference_mode():
             for k, (_, mask, ids) in enumerate(self._text, start=1):
                 out = model(pixel_values=self.pixel_values(rgb), input_ids=ids, attention_mask=mask)
-                self._merge(out, k, label, conf)
+                scores, keep = self._keep(out.pred_logits, out.presence_logits)
+                self._paint(out.pred_masks, scores, keep, k, canvas)
                 del out
-        return Segmentation(image.stamp_ns, label, self.names, conf)
+        return self._finish(canvas, rgb.shape[:2], image.stamp_ns)
 
     def close(self) -> None:
         self._model = None
@@ -287,15 +356,109 @@ def _make(cfg: SegmentationConfig) -> Sam3Segmenter:
 # ---------------------------------------------------------------------------------------
 # Random-weight models for tests and benchmarks (no SAM 3 weights can be downloaded here)
 
-#: (ViT hidden, layers, heads, MLP, native side, window, decoder hidden, decoder layers, queries, text layers)
-_PRESETS: dict[str, tuple[int, ...]] = {
+#: Random-weight configurations. ``small`` is SAM 3 (``Sam3Config()``: ViT-L 1024 wide, 32 layers of
+#: which 4 global, MLP 4736, window 24, 1008 px; FPN/DETR/mask decoder 256 wide, 6+6 DETR layers, 200
+#: queries) with every width and the query count divided by 4 and the token grid side by 2 (504 px,
+#: window 12, position-embedding tile 168 px), depths kept. Each cost term (N tokens, width w:
+#: projections and MLPs N·w², global attention N²·w, windowed attention N·window²·w, convolutions
+#: N·w², the masks N·queries·w) then shrinks by the same factor 64, so at any input side s the preset
+#: splits its FLOPs between the image embedding and a prompt's decoder run as SAM 3 does at 2·s, to
+#: within 2 % (the 32 text tokens are not scaled): :func:`flop_split` gives 13.3× at 504 px (SAM 3:
+#: 13.4× at 1008 px) and 20.3× at 252 px (SAM 3: 20.7× at 504 px). The text encoder (run once per
+#: prompt at load) is not scaled.
+_PRESETS: dict[str, dict[str, Any]] = {
     # seconds-fast, for unit tests
-    "tiny": (32, 2, 2, 64, 112, 4, 32, 1, 10, 1),
-    # SAM 3's structure shrunk keeping its cost split: the ViT (12 layers, 4 of them global) costs
-    # about 20x the prompt decoder (6+6 DETR layers, 200 queries), as SAM 3's 32-layer ViT-L
-    # costs 22x its decoder (1444 vs 66 GFLOP at 504 px, counted with torch's FlopCounterMode)
-    "small": (512, 12, 8, 2048, 448, 8, 64, 6, 200, 2),
+    "tiny": dict(vit_hidden=32, vit_layers=2, vit_heads=2, vit_mlp=64, side=112, window=4, global_layers=[1],
+                 tile=56, hidden=32, detr_layers=1, queries=10, text_layers=1),
+    "small": dict(vit_hidden=256, vit_layers=32, vit_heads=4, vit_mlp=1184, side=504, window=12,
+                  global_layers=[7, 15, 23, 31], tile=168, hidden=64, detr_layers=6, queries=50, text_layers=2),
 }
+
+
+def random_config(preset: str = "tiny", vocab_size: int = 256) -> Any:
+    """The ``Sam3Config`` of a random-weight preset (see ``_PRESETS``)."""
+    _, tf = _import()
+    if preset not in _PRESETS:
+        raise ConfigError(f"unknown SAM 3 preset {preset!r} (known: {', '.join(_PRESETS)})")
+    p = _PRESETS[preset]
+    side, dh = p["side"], p["hidden"]
+    grid = side // 14
+    vit = dict(model_type="sam3_vit_model", hidden_size=p["vit_hidden"], intermediate_size=p["vit_mlp"],
+               num_hidden_layers=p["vit_layers"], num_attention_heads=p["vit_heads"], image_size=side,
+               patch_size=14, window_size=p["window"], global_attn_indexes=list(p["global_layers"]),
+               pretrain_image_size=p["tile"])
+    text_hidden = max(32, dh)
+    heads = max(2, dh // 32)  # SAM 3: 8 heads of 32 channels
+    return tf.Sam3Config(
+        vision_config=dict(backbone_config=vit, fpn_hidden_size=dh,
+                           backbone_feature_sizes=[[grid * 4] * 2, [grid * 2] * 2, [grid] * 2]),
+        text_config=dict(model_type="clip_text_model", vocab_size=vocab_size, hidden_size=text_hidden,
+                         intermediate_size=2 * text_hidden, projection_dim=text_hidden,
+                         num_hidden_layers=p["text_layers"], num_attention_heads=2, max_position_embeddings=32,
+                         bos_token_id=2, eos_token_id=3, pad_token_id=0),
+        geometry_encoder_config=dict(hidden_size=dh, num_layers=1, num_attention_heads=2, intermediate_size=2 * dh),
+        detr_encoder_config=dict(hidden_size=dh, num_layers=p["detr_layers"], num_attention_heads=heads,
+                                 intermediate_size=8 * dh),
+        detr_decoder_config=dict(hidden_size=dh, num_layers=p["detr_layers"], num_attention_heads=heads,
+                                 intermediate_size=8 * dh, num_queries=p["queries"]),
+        mask_decoder_config=dict(hidden_size=dh, num_attention_heads=heads),
+    )
+
+
+def flop_split(config: Any = None, side: int | None = None) -> dict[str, Any]:
+    """FLOPs of one frame's image embedding and of one prompt's decoder run, counted by torch.
+
+    ``config``: a ``Sam3Config`` (default: SAM 3's own, ``Sam3Config()``); ``side``: the square input
+    side (default: the config's). The image encoder runs on the meta device (shapes only, so SAM 3's
+    ViT-L costs nothing to count); the prompt path (DETR encoder/decoder, scoring, mask decoder) runs
+    on CPU with random weights, since its box bias needs real values. Attention is counted: torch's
+    ``FlopCounterMode`` has no formula for the CPU flash-attention kernel, so one is supplied.
+    Returns GFLOP: ``vision``, ``decoder`` and the decoder's parts.
+    """
+    torch, tf = _import()
+    from types import SimpleNamespace
+
+    from torch.utils.flop_counter import FlopCounterMode, sdpa_flop_count
+
+    cfg = copy.deepcopy(config) if config is not None else tf.Sam3Config()
+    vit_cfg = cfg.vision_config.backbone_config
+    side = int(side or (vit_cfg.image_size if isinstance(vit_cfg.image_size, int) else vit_cfg.image_size[0]))
+    cpu_sdpa = {torch.ops.aten._scaled_dot_product_flash_attention_for_cpu:
+                lambda q, k, v, *_, out_shape=None, **__: sdpa_flop_count(q, k, v)}
+    with torch.device("meta"):
+        model = tf.Sam3Model(cfg).eval()
+    gen = torch.Generator().manual_seed(0)
+    for name in ("detr_encoder", "detr_decoder", "mask_decoder", "dot_product_scoring"):
+        part = getattr(model, name).to_empty(device="cpu")
+        with torch.no_grad():
+            for p in part.parameters():
+                p.copy_(torch.randn(p.shape, generator=gen) * 0.02)
+            for b in part.buffers():
+                if b.is_floating_point():
+                    b.zero_()
+    vit = model.vision_encoder.backbone
+    at_side = copy.copy(vit.config)
+    at_side.image_size = side
+    for layer in vit.layers:
+        if layer.window_size == 0:
+            layer.position_ids = layer.precompute_positions(at_side, 0).to("meta")
+    n_text = int(cfg.text_config.max_position_embeddings)
+    mask = torch.zeros(1, n_text, dtype=torch.long)
+    mask[0, :3] = 1  # a three-token prompt
+    text = SimpleNamespace(pooler_output=torch.randn(1, n_text, cfg.detr_encoder_config.hidden_size, generator=gen))
+    with torch.inference_mode():
+        with FlopCounterMode(display=False, custom_mapping=cpu_sdpa) as counter:
+            embed = model.get_vision_features(pixel_values=torch.zeros(1, 3, side, side, device="meta"))
+        vision = counter.get_total_flops()
+        embed.last_hidden_state = None
+        embed.fpn_hidden_states = tuple(torch.randn(x.shape, generator=gen) for x in embed.fpn_hidden_states)
+        embed.fpn_position_encoding = tuple(torch.randn(x.shape, generator=gen) for x in embed.fpn_position_encoding)
+        with FlopCounterMode(display=False, custom_mapping=cpu_sdpa) as counter:
+            model(vision_embeds=embed, text_embeds=text, attention_mask=mask)
+        decoder = counter.get_total_flops()
+        parts = {k.split(".")[-1]: sum(v.values()) / 1e9 for k, v in counter.get_flop_counts().items()
+                 if k.count(".") == 1}
+    return {"side": side, "vision": vision / 1e9, "decoder": decoder / 1e9, "decoder_parts": parts}
 
 
 def save_random_model(folder: str | Path, preset: str = "tiny", seed: int = 0,
@@ -311,32 +474,13 @@ def save_random_model(folder: str | Path, preset: str = "tiny", seed: int = 0,
 
     if preset not in _PRESETS:
         raise ConfigError(f"unknown SAM 3 preset {preset!r} (known: {', '.join(_PRESETS)})")
-    vh, vl, heads, vi, side, win, dh, dl, nq, tl = _PRESETS[preset]
     words = {"[PAD]", "[UNK]", "[BOS]", "[EOS]"}
     for name in list(vocabulary) + list(load_class_table(None).names("coco")):
         words.update(name.lower().split())
     vocab = {w: i for i, w in enumerate(["[PAD]", "[UNK]", "[BOS]", "[EOS]"] + sorted(words - {
         "[PAD]", "[UNK]", "[BOS]", "[EOS]"}))}
-    grid = side // 14
-    vit = dict(model_type="sam3_vit_model", hidden_size=vh, intermediate_size=vi, num_hidden_layers=vl,
-               num_attention_heads=heads, image_size=side, patch_size=14, window_size=win,
-               global_attn_indexes=[vl - 1] if vl < 4 else list(range(vl // 4 - 1, vl, vl // 4)),
-               pretrain_image_size=side // 2)
-    text_hidden = max(32, dh)
-    cfg = tf.Sam3Config(
-        vision_config=dict(backbone_config=vit, fpn_hidden_size=dh,
-                           backbone_feature_sizes=[[grid * 4] * 2, [grid * 2] * 2, [grid] * 2]),
-        text_config=dict(model_type="clip_text_model", vocab_size=len(vocab), hidden_size=text_hidden,
-                         intermediate_size=2 * text_hidden, projection_dim=text_hidden, num_hidden_layers=tl,
-                         num_attention_heads=2, max_position_embeddings=32, bos_token_id=2, eos_token_id=3,
-                         pad_token_id=0),
-        geometry_encoder_config=dict(hidden_size=dh, num_layers=1, num_attention_heads=2, intermediate_size=2 * dh),
-        detr_encoder_config=dict(hidden_size=dh, num_layers=dl, num_attention_heads=max(2, dh // 32),
-                                 intermediate_size=8 * dh),
-        detr_decoder_config=dict(hidden_size=dh, num_layers=dl, num_attention_heads=max(2, dh // 32),
-                                 intermediate_size=8 * dh, num_queries=nq),
-        mask_decoder_config=dict(hidden_size=dh, num_attention_heads=max(2, dh // 32)),
-    )
+    cfg = random_config(preset, len(vocab))
+    side = _PRESETS[preset]["side"]
     torch.manual_seed(seed)
     model = tf.Sam3Model(cfg).eval()
     out = Path(folder)

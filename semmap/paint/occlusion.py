@@ -11,7 +11,7 @@ the nearer line keeps the mask's label.
 **The filter** decides visibility from the camera's own viewpoint, in the LiDAR plane
 (points at the image time, in the base frame, seen from the camera centre projected into
 that plane). A point ``p`` on a mask with label ``L`` is *hidden* when LiDAR points of the
-same mask lie nearer the camera on the same viewing ray:
+same mask lie nearer the camera and cover it:
 
 1. **Same ray.** A point ``q`` labelled ``L`` whose bearing from the camera is within
    ``q``'s angular footprint of ``p``'s and which is nearer by at least the depth margin
@@ -21,21 +21,23 @@ same mask lie nearer the camera on the same viewing ray:
    between the scan points of a continuous surface do not let background points through.
 2. **Bridged gaps.** Objects seen only in parts (a person's two legs, a table's legs) leave
    wider gaps at LiDAR height. ``p`` is also hidden when the nearest such nearer ``L`` points
-   on its left and on its right are at most ``max_gap`` apart *and* their pixels and ``p``'s
-   lie on one connected region of the mask: the object that covers ``p``'s pixel is the one
-   they belong to.
+   on its left and on its right are at most ``max_gap`` apart *and* the mask covers ``p``'s
+   pixel row between ``p`` and each of them: the object that covers ``p``'s pixel spans
+   the gap between them.
 3. **Past the outermost point.** Above LiDAR height an object reaches past its legs (a
    chair's seat, a table's top, a person's arms), and a mask spills a few pixels past its
    object. ``p`` is also hidden when a nearer ``L`` point lies at most ``overhang`` to the
    side of ``p``'s ray or projects at most ``edge_px`` columns away, and the mask covers
-   ``p``'s pixel row between the two (a stricter test than connected regions: one-sided
-   evidence is weaker).
-
+   ``p``'s pixel row between the two.
 4. **A background line across the mask.** ``p``'s surface (neighbouring scan points with
-   steps under ``line_step``) runs on to points off the mask, so it is structure the mask
-   overlaps, and a point of the mask stands in front of it by at least
-   ``line_depth_margin`` (less than the depth margin: a bed pushed against a wall), on the
-   same connected region of the mask. An object's own far side does not run off its mask.
+   steps under ``line_step``) runs on, across the shadows of nearer objects, to points off
+   the mask, so it is structure the mask overlaps, and a point of the mask stands in front
+   of it by at least ``line_depth_margin`` (less than the depth margin: a bed pushed against
+   a wall), on the same connected region of the mask.
+
+A run of scan points nearer than the points on either side of it (a chair's rear leg seen
+through the gap between its front legs) is a foreground object to the LiDAR; only rule 1 may
+hide it.
 
 Hidden points become ``unknown`` (not ``static``: the camera says nothing about them). The
 occluding points must carry the same label as ``p``: the label image shows one surface per
@@ -45,7 +47,7 @@ at the image's edge in their column): an object close to the robot can be out of
 LiDAR height and still fill the image above it.
 
 Several objects, overlapping or not, are handled per label; the cost is a (masked points ×
-labelled points) comparison per scan, a few hundred microseconds.
+labelled points) comparison per scan, about 0.4 ms.
 """
 
 from __future__ import annotations
@@ -103,7 +105,9 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     if t.size == 0:
         return hidden
     o = np.nonzero(labels > 0)[0]
-    o = o[np.isin(labels[o], np.unique(labels[t]))]
+    wanted = np.zeros(int(labels.max()) + 1, bool)
+    wanted[labels[t]] = True
+    o = o[wanted[labels[o]]]
     if o.size < 2:
         return hidden
     masks = _Components(label_image, uv, labels)
@@ -233,26 +237,24 @@ def _through_shadows(off: NDArray[np.bool_], xy: NDArray[np.float64], dist: NDAr
 
     A wall behind a bed's legs reaches the LiDAR in pieces, cut by the legs' shadows. A run
     counts as off the mask when the run beyond a nearer run (the shadow's caster) continues it
-    within ``max_gap`` and is off the mask. Repeated until nothing changes (a few passes).
+    within ``max_gap`` and is off the mask; repeated a few times, so it crosses several shadows.
     """
     n = off.size
     if n < 3:
         return off
+    run_max = np.maximum.reduceat(dist, first)  # the farthest point of each run
+    r = np.arange(2, n)  # run r and run r - 2, with run r - 1 between them
+
+    def bridged(a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
+        return (run_max[r - 1] < np.minimum(dist[a], dist[b])) & (np.hypot(*(xy[a] - xy[b]).T) <= max_gap)
+
+    ok = bridged(first[r], last[r - 2])  # ok[i]: runs i and i + 2 are one surface behind run i + 1
     out = off.copy()
     for _ in range(4):
-        changed = False
-        for r in range(n):
-            if out[r]:
-                continue
-            for side in (-1, 1):
-                mid, nxt = r + side, r + 2 * side
-                if not (0 <= nxt < n) or not out[nxt]:
-                    continue
-                a, b = (first[r], last[nxt]) if side < 0 else (last[r], first[nxt])
-                nearer = (dist[first[mid]:last[mid] + 1] < min(dist[a], dist[b])).all()
-                if nearer and np.hypot(*(xy[a] - xy[b])) <= max_gap:
-                    out[r] = changed = True
-                    break
-        if not changed:
+        new = out.copy()
+        new[2:] |= ok & out[:-2]
+        new[:-2] |= ok & out[2:]
+        if np.array_equal(new, out):
             break
+        out = new
     return out

@@ -242,7 +242,7 @@ def export_painted(
     out = Path(out)
     fmt = (fmt or out.suffix.lstrip(".")).lower()
     if fmt not in ("csv", "npz"):
-        raise ConfigError(f"{out}: cannot tell the format; name the file .csv or .npz (or pass fmt)")
+        raise ConfigError(f"{out}: cannot tell the format; name the file .csv or .npz")
     if out.exists() and not force:
         raise OutputExistsError(f"{out}: exists (use --force to replace it)")
     if not out.parent.is_dir():

@@ -71,7 +71,9 @@ def load_dataset(root: str | Path, class_list: str = "coco", classes_file: Path 
     root = Path(root)
     if not root.is_dir():
         raise ConfigError(f"{root}: no such dataset folder")
-    img_root = root / "images" if (root / "images").is_dir() else root
+    if not ((root / "images").is_dir() and (root / "labels").is_dir()):
+        raise ConfigError(f"{root}: not a YOLO-seg dataset: expected images/ and labels/ folders in it")
+    img_root = root / "images"
     images = sorted(p for p in img_root.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
     if not images:
         raise ConfigError(f"{root}: no images (.jpg/.png) found")

@@ -7,6 +7,8 @@ radians; 4x4 matrices appear only at library boundaries.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -33,8 +35,15 @@ __all__ = [
 ]
 
 
+def _wrap1(a: float) -> float:
+    """One angle wrapped to (-pi, pi], in plain floats (the hot path: a pose at a time)."""
+    return math.pi - (math.pi - a) % (2.0 * math.pi)
+
+
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     """Wrap angles to (-pi, pi]."""
+    if isinstance(angle, float | int):
+        return _wrap1(float(angle))
     a = np.asarray(angle, dtype=np.float64)
     w = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     return float(w) if w.ndim == 0 else w
@@ -54,6 +63,11 @@ def se2_compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """
     a = _pose_array(a)
     b = _pose_array(b)
+    if a.shape == (3,) and b.shape == (3,):  # one pose: plain floats are 10x faster than numpy ufuncs
+        ax, ay, at = a.tolist()
+        bx, by, bt = b.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap1(at + bt)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -64,6 +78,10 @@ def se2_compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
 def se2_inverse(a: ArrayLike) -> NDArray[np.float64]:
     """Return the inverse pose ``a⁻¹``."""
     a = _pose_array(a)
+    if a.shape == (3,):
+        ax, ay, at = a.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap1(-at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = -c * a[..., 0] - s * a[..., 1]
     y = s * a[..., 0] - c * a[..., 1]

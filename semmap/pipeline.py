@@ -189,6 +189,30 @@ class _Pipeline:
         return dict(self.frame_source.counts) if self.frame_source is not None else {"frames": 0, "bad_frames": 0}
 
 
+def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
+                    calibration: str | Path | None = None,
+                    overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
+    """The effective config and the opened tour, as ``semmap build`` sees them (also ``semmap paint``).
+
+    A simulated tour's manifest names the class list of its label images; it applies unless
+    the config sets ``segmentation.class_list``.
+    """
+    if isinstance(config, BuildConfig):
+        cfg, cfg_dir = config, Path.cwd()
+        if overrides:
+            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
+    else:
+        cfg, cfg_dir = load_build_config(config, overrides)
+    tour_path = Path(tour)
+    if not tour_path.exists():
+        raise BagError(f"{tour_path}: no such file or directory")
+    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
+    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
+        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
+        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    return tinfo, cfg
+
+
 def build(
     tour: str | Path,
     out: str | Path,
@@ -206,22 +230,7 @@ def build(
     Nothing appears at ``out`` until the whole map folder is written.
     """
     t_start = time.perf_counter()
-    if isinstance(config, BuildConfig):
-        cfg, cfg_dir = config, Path.cwd()
-        if overrides:
-            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
-    else:
-        cfg, cfg_dir = load_build_config(config, overrides)
-    tour_path = Path(tour)
-    if not tour_path.exists():
-        raise BagError(f"{tour_path}: no such file or directory")
-
-    consumes = backend_consumes(cfg.segmentation)
-    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=consumes)
-    # a simulated tour says which class list its label images use
-    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
-        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
-        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
     frames: Any = None
     class_names: tuple[str, ...] = ()
     if tinfo.topics.frames is None:

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..classes import load_class_table
-from ..config import BuildConfig, merge_overrides
+from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError
 from ..records import Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
@@ -76,21 +76,10 @@ class PaintExport:
 
 def _load(tour: str | Path, config: str | Path | BuildConfig | None, calibration: str | Path | None,
           overrides: dict[str, Any] | None) -> tuple[Any, BuildConfig, tuple[str, ...]]:
-    from ..io.tour import load_build_config, open_tour
-    from ..segment.base import backend_consumes, create_segmenter
+    from ..pipeline import open_build_tour
+    from ..segment.base import create_segmenter
 
-    if isinstance(config, BuildConfig):
-        cfg, cfg_dir = config, Path.cwd()
-        if overrides:
-            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
-    else:
-        cfg, cfg_dir = load_build_config(config, overrides)
-    if not Path(tour).exists():
-        raise BagError(f"{tour}: no such file or directory")
-    tinfo = open_tour(Path(tour), cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
-    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
-        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
-        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
     if tinfo.topics.frames is None:
         raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
                        f"or topics.labels")

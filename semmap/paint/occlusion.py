@@ -104,22 +104,29 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     t = np.nonzero(targets & (labels > 0))[0]
     if t.size == 0:
         return hidden
+    rel = xy - eye
+    dist = np.hypot(rel[:, 0], rel[:, 1])
     o = np.nonzero(labels > 0)[0]
     wanted = np.zeros(int(labels.max()) + 1, bool)
     wanted[labels[t]] = True
     o = o[wanted[labels[o]]]
-    if o.size < 2:
+    # only occluders nearer than the farthest target, and targets behind the nearest occluder, matter
+    least = min(p.line_depth_margin, p.depth_margin) if p.line_step > 0 else p.depth_margin
+    if o.size:
+        o = o[dist[o] < dist[t].max() - least]
+    if o.size == 0:
         return hidden
-    masks = _Components(label_image, uv, labels)
-    rel = xy - eye
-    dist = np.hypot(rel[:, 0], rel[:, 1])
+    t = t[dist[t] > dist[o].min() + least]
+    if t.size == 0:
+        return hidden
     bearing = np.arctan2(rel[:, 1], rel[:, 0])
     d_t = dist[t]
-    limit = d_t - (p.depth_margin + p.depth_margin_rel * d_t)
-    nearer = (labels[t][:, None] == labels[o][None, :]) & (dist[o][None, :] < limit[:, None])
     same = labels[t][:, None] == labels[o][None, :]
-    if not (same & (dist[o][None, :] < (d_t - min(p.line_depth_margin, p.depth_margin))[:, None])).any():
+    if not (same & (dist[o][None, :] < (d_t - least)[:, None])).any():
         return hidden
+    masks = _Components(label_image, uv, labels)
+    limit = d_t - (p.depth_margin + p.depth_margin_rel * d_t)
+    nearer = same & (dist[o][None, :] < limit[:, None])
     da = bearing[o][None, :] - bearing[t][:, None]
     da = (da + np.pi) % (2 * np.pi) - np.pi
     # runs: neighbouring scan points of one surface; a run nearer than the points beside it is a foreground
@@ -195,8 +202,8 @@ class _Components:
     def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
         self.image = label_image
         h, w = label_image.shape
-        self.col = np.clip(np.rint(uv[:, 0]).astype(np.intp), 0, w - 1)
-        self.row = np.clip(np.rint(uv[:, 1]).astype(np.intp), 0, h - 1)
+        self.col = np.minimum(np.maximum(np.rint(uv[:, 0]).astype(np.intp), 0), w - 1)
+        self.row = np.minimum(np.maximum(np.rint(uv[:, 1]).astype(np.intp), 0), h - 1)
         self.labels = labels
         # a camera frame is painted with several scans: keep its regions while the same image comes back
         last = _Components._last

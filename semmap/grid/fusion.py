@@ -304,7 +304,7 @@ class SemanticGrid:
             scratch = cv2.erode(scratch, _KERNEL3, borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scratch[hr - r0, hc - c0] = 0
         lo = self._lo[r0:r1, c0:c1]
-        cv2.scaleAdd(scratch.astype(np.float32), -float(cfg.l_free), lo, dst=lo)
+        cv2.subtract(lo, float(cfg.l_free), dst=lo, mask=scratch)
         cv2.max(lo, float(cfg.l_min), dst=lo)
         fr = self._free[r0:r1, c0:c1]
         if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add

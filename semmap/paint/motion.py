@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import bisect
+import math
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +22,7 @@ class OdomTrack:
         self.max_gap_ns = int(max_gap_s * 1e9)
         self._t: list[int] = []
         self._p: list[NDArray[np.float64]] = []
+        self._f: list[tuple[float, ...]] = []  # the same poses as plain floats (the few-stamps path)
         self._arrays: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None  # cache for interpolate
         self.out_of_order = 0
 
@@ -37,6 +39,7 @@ class OdomTrack:
             return
         self._t.append(int(stamp_ns))
         self._p.append(np.asarray(pose, dtype=np.float64))
+        self._f.append(tuple(float(v) for v in self._p[-1][:3]))
         self._arrays = None
 
     def trim(self, before_ns: int) -> None:
@@ -45,6 +48,7 @@ class OdomTrack:
         if k > 0:
             del self._t[:k]
             del self._p[:k]
+            del self._f[:k]
             self._arrays = None
 
     def covers(self, t_ns: int) -> bool:
@@ -55,6 +59,8 @@ class OdomTrack:
         or falls in a gap longer than ``max_gap_s`` between samples."""
         if len(self._t) < 2:
             return None
+        if np.ndim(t_ns) == 0 or len(t_ns) <= 4:  # the painter asks for 1-3 stamps a scan: no arrays needed
+            return self._few(t_ns)
         tt = np.atleast_1d(np.asarray(t_ns, dtype=np.int64))
         if self._arrays is None:
             self._arrays = (np.asarray(self._t, dtype=np.int64), np.asarray(self._p))
@@ -73,3 +79,23 @@ class OdomTrack:
         yaw = a[:, 2] + f[:, 0] * d
         out[:, 2] = np.pi - (np.pi - yaw) % (2 * np.pi)  # wrap to (-π, π]
         return out[0] if np.ndim(t_ns) == 0 else out
+
+    def _few(self, t_ns: NDArray[np.int64] | int) -> NDArray[np.float64] | None:
+        """:meth:`interpolate` for a handful of stamps, in plain floats (same arithmetic)."""
+        scalar = np.ndim(t_ns) == 0
+        stamps = [int(t_ns)] if scalar else [int(v) for v in t_ns]
+        t, f = self._t, self._f
+        out = np.empty((len(stamps), 3))
+        for i, tq in enumerate(stamps):
+            if tq < t[0] or tq > t[-1]:
+                return None
+            k = min(max(bisect.bisect_right(t, tq) - 1, 0), len(t) - 2)
+            gap = t[k + 1] - t[k]
+            if gap > self.max_gap_ns:
+                return None
+            w = (tq - t[k]) / max(gap, 1)
+            (ax, ay, ayaw), (bx, by, byaw) = f[k], f[k + 1]
+            d = (byaw - ayaw + math.pi) % (2 * math.pi) - math.pi
+            yaw = ayaw + w * d
+            out[i] = (ax + w * (bx - ax), ay + w * (by - ay), math.pi - (math.pi - yaw) % (2 * math.pi))
+        return out[0] if scalar else out

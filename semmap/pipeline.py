@@ -158,7 +158,12 @@ class _Pipeline:
             return
         self._last_scan_ns = scan.stamp_ns
         t0 = time.perf_counter()
-        seg = self._segmentation(scan)
+        self._handle(scan, self._segmentation(scan), t0)
+        if self.odom is not None:
+            self.odom.trim(scan.stamp_ns - 1_000_000_000)  # forget what no future scan needs
+
+    def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:
+        """Paint a scan paired with its segmentation and hand it to the mapper."""
         painted = self.painter.paint(scan, self.odom, seg)
         odom_pose = self.painter.last_odom_pose
         t1 = time.perf_counter()
@@ -173,8 +178,6 @@ class _Pipeline:
         self._tally(painted)
         self.trace.stamps.append(painted.stamp_ns)
         self.trace.odom.append(odom_pose)
-        if self.odom is not None:
-            self.odom.trim(scan.stamp_ns - 1_000_000_000)  # forget what no future scan needs
 
     def _tally(self, painted: PaintedScan) -> None:
         hit = painted.hit

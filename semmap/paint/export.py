@@ -27,7 +27,6 @@ from ..classes import load_class_table
 from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError
 from ..records import Mobility, PaintedScan, Scan, Segmentation
-from .motion import OdomTrack
 from .painter import CameraView, Painter
 
 __all__ = ["PaintedPair", "PaintExport", "iter_painted", "export_painted", "EXPORT_COLUMNS"]
@@ -98,89 +97,54 @@ def iter_painted(
 ) -> Iterator[PaintedPair]:
     """Paint every scan of ``tour`` with and without the occlusion filter, in scan order.
 
+    Scans are paired with images and odometry by the same streaming core as ``semmap build``.
     The filter's parameters come from the config (``paint.occlusion_*``); the filtered
     painting uses them even where the config switches the filter off.
     """
     from ..io.bag import iter_messages, message_count
-    from ..io.messages import odometry_from_msg, scan_from_msg
+    from ..pipeline import _Pipeline
     from ..workers import InProcessFrames
 
     tinfo, cfg, names = _load(tour, config, calibration, overrides)
-    table = load_class_table(cfg.segmentation.classes_file)
+    on = cfg.model_copy(update={"paint": cfg.paint.model_copy(update={"occlusion_filter": True})})
 
-    def painter(on: bool) -> Painter:
-        paint_cfg = cfg.paint.model_copy(update={"occlusion_filter": on})
-        return Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, paint_cfg, cfg.sync,
-                       cfg.grid.max_free_range)
+    class _Pairs(_Pipeline):
+        """The build's core, painting each scan twice and keeping the pairs instead of mapping."""
 
-    raw_painter, painter_on = painter(False), painter(True)
-    odom = OdomTrack(cfg.sync.max_odom_gap) if tinfo.topics.odometry else None
+        def __init__(self, frames: InProcessFrames) -> None:
+            super().__init__(tinfo, on, names, frames, mapper=None)
+            off = cfg.paint.model_copy(update={"occlusion_filter": False})
+            self.raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names,
+                                       load_class_table(cfg.segmentation.classes_file), off, cfg.sync,
+                                       cfg.grid.max_free_range)
+            self.out: deque[PaintedPair] = deque()
+
+        def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:
+            raw = self.raw_painter.paint(scan, self.odom, seg)
+            filtered = self.painter.paint(scan, self.odom, seg)
+            self.out.append(PaintedPair(scan, raw, filtered, self.painter.last_view, seg))
+
     frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, tinfo.types.get(tinfo.topics.frames, ""),
                              cfg.segmentation)
-    max_offset = int(cfg.sync.max_image_offset * 1e9)
-    segs: deque[Segmentation] = deque()
-    frames_done = False
-    pending: deque[tuple[int, Scan]] = deque()
-    last_stamp: list[int] = []
-
-    def end_ns(scan: Scan) -> int:
-        return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
-
-    def segmentation(scan: Scan) -> Segmentation | None:
-        nonlocal frames_done
-        mid = scan.stamp_ns + (end_ns(scan) - scan.stamp_ns) // 2
-        while not frames_done and (not segs or segs[-1].stamp_ns < mid + max_offset):
-            seg = frames.next()
-            if seg is None:
-                frames_done = True
-            else:
-                segs.append(seg)
-        while len(segs) > 1 and segs[0].stamp_ns < mid - max_offset - 500_000_000:
-            segs.popleft()
-        if not segs:
-            return None
-        best = min(segs, key=lambda s: abs(s.stamp_ns - mid))
-        return best if abs(best.stamp_ns - mid) <= max_offset else None
-
-    def process(scan: Scan) -> PaintedPair | None:
-        if last_stamp and scan.stamp_ns <= last_stamp[0]:
-            return None  # repeated or backwards stamps are skipped, as in semmap build
-        last_stamp[:] = [scan.stamp_ns]
-        seg = segmentation(scan)
-        raw = raw_painter.paint(scan, odom, seg)
-        filtered = painter_on.paint(scan, odom, seg)
-        if odom is not None:
-            odom.trim(scan.stamp_ns - 1_000_000_000)
-        return PaintedPair(scan, raw, filtered, painter_on.last_view, seg)
-
-    def ready(t_now: int, t_scan: int, scan: Scan) -> bool:
-        # odometry must reach past the sweep and the latest image it may be paired with (motion compensation)
-        odom_ok = odom is None or (odom.last_ns is not None and odom.last_ns >= end_ns(scan) + max_offset)
-        return odom_ok or t_now - t_scan > 2_000_000_000 or len(pending) > 64
-
-    topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
-    total = message_count(tinfo.bag, tinfo.topics.scan)
-    done = 0
     try:
+        pipe = _Pairs(frames)
+        topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
+        total = message_count(tinfo.bag, tinfo.topics.scan)
+        done = 0
         for topic, t_bag, msg in iter_messages(tinfo.bag, topics):
             if topic == tinfo.topics.scan:
-                scan = scan_from_msg(msg)
-                if scan.ranges.size and np.isfinite(scan.angle_increment) and scan.angle_increment != 0:
-                    pending.append((t_bag, scan))
+                pipe.on_scan(t_bag, msg)
                 done += 1
                 if progress is not None and done % 50 == 0:
                     progress(done, total)
-            elif odom is not None:
-                stamp, _, _, pose = odometry_from_msg(msg)
-                odom.add(stamp, pose)
-            while pending and ready(t_bag, *pending[0]):
-                pair = process(pending.popleft()[1])
-                if pair is not None:
-                    yield pair
-        while pending:
-            pair = process(pending.popleft()[1])
-            if pair is not None:
-                yield pair
+            else:
+                pipe.on_odometry(msg)
+            pipe.process_ready(t_bag)
+            while pipe.out:
+                yield pipe.out.popleft()
+        pipe.flush()
+        while pipe.out:
+            yield pipe.out.popleft()
         if progress is not None:
             progress(total, total)
     finally:

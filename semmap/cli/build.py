@@ -61,7 +61,10 @@ def _print_summary(result) -> None:  # noqa: ANN001
     m, th = s["map"], s["throughput"]
     out = console()
     out.print(f"[bold]semmap build[/bold]: {s['tour']['bag']} → {result.out}")
-    out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image), "
+    occ = s["painting"].get("occlusion_filter") or {}
+    hidden = (f", {occ['points_relabelled']} points hidden from the camera made unknown"
+              if occ.get("on") and s["painting"]["scans_painted"] else "")
+    out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image{hidden}), "
               f"registration {s['registration']['mode']}")
     out.print(f"  map        {m['size_m'][0]} m × {m['size_m'][1]} m at {m['resolution']} m: "
               f"{m['occupied_cells']} occupied, {m['semi_static_cells']} semi-static, "

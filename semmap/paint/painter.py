@@ -11,9 +11,8 @@ For each scan the painter
    the scan stamp and the image stamp), maps them into the camera with
    ``T_cam_lidar @ T_lidar_base`` and projects them with the calibrated camera model;
 4. reads the label under each point and maps class → mobility through the class table;
-5. runs the occlusion filter (:mod:`semmap.paint.occlusion`): points inside a mask that the
-   camera cannot see, because a nearer LiDAR point lies on the same viewing ray, lose the
-   mask's label and become ``unknown``.
+5. runs the occlusion filter (:mod:`semmap.paint.occlusion`): points on a mask that nearer
+   points of the same mask hide from the camera lose the mask's label and become ``unknown``.
 
 Points that land outside the image, behind the camera, or on no image at all are
 ``unknown`` (mobility 0); points inside the image on no mask are ``static``.
@@ -124,8 +123,6 @@ class Painter:
         self._dirs = np.zeros((0, 3))
         #: the odometry pose at the last painted scan's reference time (None if not covered)
         self.last_odom_pose: NDArray[np.float64] | None = None
-        #: points of the last scan the occlusion filter relabelled unknown
-        self.last_relabelled = 0
         #: the last scan's projection into the camera (None when it was not painted)
         self.last_view: CameraView | None = None
         self._occlusion = OcclusionParams.from_config(paint_cfg) if paint_cfg.occlusion_filter else None
@@ -200,7 +197,6 @@ class Painter:
 
         mobility = np.zeros(n, np.uint8)
         class_id = np.full(n, -1, np.int16)
-        self.last_relabelled = 0
         self.last_view = None
         if seg is not None and self.calib is not None:
             footprint = np.abs(scan.ranges.astype(np.float64) * scan.angle_increment)
@@ -278,7 +274,6 @@ class Painter:
         if n_hidden:
             mob[hidden] = Mobility.UNKNOWN
             cls[hidden] = -1
-            self.last_relabelled = n_hidden
             self.stats.occlusion_relabelled += n_hidden
             self.stats.occlusion_scans += 1
             self.stats.occlusion_max_per_scan = max(self.stats.occlusion_max_per_scan, n_hidden)

@@ -194,10 +194,13 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     return hidden
 
 
+_ROW_STEPS = np.linspace(0.0, 1.0, 24)[None, :]  # where row_joined samples the row between two columns
+
+
 class _Components:
     """Whether two points' pixels lie on one connected region of their mask (computed per label, lazily)."""
 
-    _last: tuple[weakref.ReferenceType, dict[int, NDArray[np.int32]]] | None = None
+    _last: tuple[weakref.ReferenceType, dict[int, tuple[int, int, NDArray[np.int32]]]] | None = None
 
     def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
         self.image = label_image
@@ -213,28 +216,41 @@ class _Components:
             self._cc = {}
             _Components._last = (weakref.ref(label_image), self._cc)
 
-    def _of(self, value: int) -> NDArray[np.int32]:
+    def _of(self, value: int) -> tuple[int, int, NDArray[np.int32]]:
+        """Connected regions of the mask ``value`` within its bounding box: (column, row, regions)."""
         cc = self._cc.get(value)
         if cc is None:
-            _, cc = cv2.connectedComponents((self.image == value).view(np.uint8) if self.image.dtype == bool
-                                            else (self.image == value).astype(np.uint8), connectivity=8)
+            mask = (self.image == value).view(np.uint8)
+            x, y, w, h = cv2.boundingRect(mask)  # the regions of a small mask cost a small image
+            _, regions = cv2.connectedComponents(mask[y:y + h, x:x + w], connectivity=8)
+            cc = (x, y, regions)
             self._cc[value] = cc
         return cc
 
     def row_joined(self, a: NDArray[np.intp], b: NDArray[np.intp], min_share: float = 0.8) -> NDArray[np.bool_]:
         """Whether the mask covers ``min_share`` of a's pixel row between a's column and b's."""
-        s = np.linspace(0.0, 1.0, 24)
-        cols = np.rint(self.col[a][:, None] + (self.col[b] - self.col[a])[:, None] * s[None, :]).astype(np.intp)
+        ca = self.col[a]
+        cols = np.rint(ca[:, None] + (self.col[b] - ca)[:, None] * _ROW_STEPS).astype(np.intp)
         on = self.image[self.row[a][:, None], cols] == self.labels[a][:, None]
-        return on.mean(axis=1) >= min_share
+        return np.count_nonzero(on, axis=1) >= min_share * _ROW_STEPS.size
 
     def joined(self, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Whether a's and b's pixels lie on one connected region of a's mask."""
         out = np.zeros(a.size, bool)
         for value in np.unique(self.labels[a]):
             m = self.labels[a] == value
-            cc = self._of(int(value))
-            ca = cc[self.row[a[m]], self.col[a[m]]]
-            out[m] = (ca > 0) & (ca == cc[self.row[b[m]], self.col[b[m]]])
+            x, y, cc = self._of(int(value))
+            ra = self._region(cc, x, y, a[m])
+            out[m] = (ra > 0) & (ra == self._region(cc, x, y, b[m]))
+        return out
+
+    def _region(self, cc: NDArray[np.int32], x: int, y: int, i: NDArray[np.intp]) -> NDArray[np.int32]:
+        """The region under points ``i`` (0: off the mask) in regions ``cc`` of the box at (x, y)."""
+        r, c = self.row[i] - y, self.col[i] - x
+        h, w = cc.shape
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        out = np.zeros(i.size, np.int32)
+        out[inside] = cc[r[inside], c[inside]]
         return out
 
 

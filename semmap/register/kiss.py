@@ -89,8 +89,9 @@ class KissMatcher:
         source = self._down(map_points, self._voxel * 1.5)
         if self._max_source and source.shape[0] > self._max_source:
             # open spaces give many more points than three degrees of freedom need: thin the
-            # ICP source (not the map) with a coarser grid, keeping the cost per scan bounded
-            scale = float(np.sqrt(source.shape[0] / self._max_source))
+            # ICP source (not the map) with a coarser grid, keeping the cost per scan bounded; a
+            # scan plane's points lie along lines, so their number falls linearly with the grid
+            scale = float(source.shape[0] / self._max_source)
             source = self._down(map_points, self._voxel * 1.5 * scale)
         return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64),
                             np.ascontiguousarray(source, dtype=np.float64))

@@ -119,12 +119,9 @@ def matrix_to_se2(m: ArrayLike) -> NDArray[np.float64]:
 
 def se2_to_se3(pose: ArrayLike, z: float = 0.0) -> NDArray[np.float64]:
     """(x, y, yaw) → 4x4 transform in the plane z = ``z``."""
-    x, y, yaw = _pose_array(pose)
-    c, s = np.cos(yaw), np.sin(yaw)
-    t = np.eye(4)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:3, 3] = [x, y, z]
-    return t
+    x, y, yaw = (float(v) for v in _pose_array(pose).reshape(3))
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, float(z)], [0.0, 0.0, 0.0, 1.0]])
 
 
 def se3_to_se2(t: ArrayLike) -> NDArray[np.float64]:

@@ -423,9 +423,11 @@ class MapperWorkers:
         self._batch: list[tuple[Any, NDArray[np.float64] | None, Any]] = []
         self._batch_size = batch
         # the stateless down-sampling runs here, beside the painter, to unload the registration worker
+        # (in icp mode: no Kalman filter to build, so its libraries stay out of this process)
         from .register import Registrar
 
-        self._preparer = Registrar(reg_cfg)
+        self._preparer = Registrar(reg_cfg.model_copy(update={"mode": "icp"})) if reg_cfg.mode != "odometry" \
+            else None
 
     def wait_ready(self) -> None:
         """Block until both workers have loaded their libraries (start-up is not counted as work)."""
@@ -453,7 +455,7 @@ class MapperWorkers:
                 self._alive_or_raise()
 
     def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
-        self._batch.append((painted, odom_pose, self._preparer.prepare(painted)))
+        self._batch.append((painted, odom_pose, None if self._preparer is None else self._preparer.prepare(painted)))
         if len(self._batch) >= self._batch_size:
             self._put(self._batch)
             self._batch = []

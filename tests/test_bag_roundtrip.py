@@ -102,3 +102,54 @@ def test_manifest_and_ground_truth_files(short_tour):
     assert (short_tour.out / "preview" / "camera.png").stat().st_size > 10_000
     odo = manifest["odometry_error"]
     assert 0.01 <= abs(odo["scale"]) <= 0.02 and 0.01 <= abs(odo["yaw_scale"]) <= 0.02
+
+
+READ_TOPICS = ["/scan", "/odom", "/camera/labels", "/tf", "/tf_static"]
+
+
+def _via_rosbags(bag, topics):
+    with open_bag(bag) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
+
+
+def test_streamed_messages_are_rosbags_messages(short_tour):
+    """semmap reads uncompressed ROS1 messages record by record (not whole chunks): same messages, same order."""
+    from semmap.io.bag import _ros1_records, iter_messages
+
+    theirs = _via_rosbags(short_tour.bag, READ_TOPICS)
+    with open_bag(short_tour.bag) as reader:
+        conns = [c for c in reader.connections if c.topic in READ_TOPICS]
+        records = _ros1_records(reader, conns)
+        assert (records is not None) == (short_tour.bag.suffix == ".bag")
+        if records is not None:
+            assert [(c.topic, t, bytes(raw)) for c, t, raw in records] == theirs
+    ours = [(topic, t) for topic, t, _ in iter_messages(short_tour.bag, READ_TOPICS)]
+    assert ours == [(topic, t) for topic, t, _ in theirs]
+    assert {topic for topic, _ in ours} == set(READ_TOPICS)
+
+
+def test_compressed_ros1_chunks_are_read_by_rosbags(short_tour, tmp_path):
+    """A bz2/lz4 ROS1 bag must be decompressed chunk by chunk: rosbags' own path reads it, unchanged."""
+    if short_tour.bag.suffix != ".bag":
+        pytest.skip("ROS1 only")
+    from rosbags.rosbag1 import Writer
+
+    from semmap.io.bag import _ros1_records, iter_messages
+
+    packed = tmp_path / "lz4.bag"
+    with open_bag(short_tour.bag) as reader:
+        writer = Writer(packed)
+        writer.set_compression(Writer.CompressionFormat.LZ4)
+        with writer:
+            out = {}
+            for conn in reader.connections:
+                if conn.topic in READ_TOPICS and conn.id not in out:
+                    out[conn.id] = writer.add_connection(conn.topic, conn.msgtype, msgdef=conn.msgdef.data,
+                                                         md5sum=conn.digest)
+            for conn, t, raw in reader.messages(connections=[c for c in reader.connections if c.id in out]):
+                writer.write(out[conn.id], t, raw)
+    with open_bag(packed) as reader:
+        assert _ros1_records(reader, list(reader.connections)) is None
+    assert [(topic, t) for topic, t, _ in iter_messages(packed, READ_TOPICS)] == \
+        [(topic, t) for topic, t, _ in _via_rosbags(short_tour.bag, READ_TOPICS)]

@@ -245,7 +245,7 @@ class SemanticGrid:
         # max_free_range, but one with returns on both sides within dropout_guard beams (a
         # dropout) clears no further than they do, so it cannot punch a ray through a wall
         free_len = np.where(hit, rng - cfg.hit_free_margin, rng)
-        np.clip(free_len, 0.0, cfg.max_free_range, out=free_len)
+        np.minimum(np.maximum(free_len, 0.0, out=free_len), cfg.max_free_range, out=free_len)
         k = int(cfg.dropout_guard)
         gaps = np.flatnonzero(~hit & ok) if k > 0 else ()
         if len(gaps) and len(gaps) < rng.size:
@@ -254,12 +254,12 @@ class SemanticGrid:
             side = np.arange(1, k + 1)
             li = gaps[:, None] - side
             ri = gaps[:, None] + side
-            left = np.where(li >= 0, near[np.clip(li, 0, n - 1)], np.inf).min(axis=1)
-            right = np.where(ri < n, near[np.clip(ri, 0, n - 1)], np.inf).min(axis=1)
+            left = np.where(li >= 0, near[np.maximum(li, 0)], np.inf).min(axis=1)
+            right = np.where(ri < n, near[np.minimum(ri, n - 1)], np.inf).min(axis=1)
             wall = np.maximum(left, right)
             inner = np.isfinite(wall)
             g = gaps[inner]
-            free_len[g] = np.clip(wall[inner] - cfg.hit_free_margin, 0.0, free_len[g])
+            free_len[g] = np.minimum(np.maximum(wall[inner] - cfg.hit_free_margin, 0.0), free_len[g])
         scale = free_len / np.maximum(rng, 1e-12)
 
         # into the map frame: origin + R (end - origin)
@@ -286,8 +286,8 @@ class SemanticGrid:
         c1, r1 = min(int((x1 - gx) / res) + 1, W), min(int((y1 - gy) / res) + 1, H)
 
         # hit cells (clipped: a float can round onto the window's far edge)
-        hc = np.clip(((hx - gx) / res).astype(np.intp), c0, c1 - 1)
-        hr = np.clip(((hy - gy) / res).astype(np.intp), r0, r1 - 1)
+        hc = np.minimum(np.maximum(((hx - gx) / res).astype(np.intp), c0), c1 - 1)
+        hr = np.minimum(np.maximum(((hy - gy) / res).astype(np.intp), r0), r1 - 1)
 
         # free space: the scan polygon, minus the cells returns of this scan ended in
         scratch = np.zeros((r1 - r0, c1 - c0), np.uint8)
@@ -304,7 +304,7 @@ class SemanticGrid:
             scratch = cv2.erode(scratch, _KERNEL3, borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scratch[hr - r0, hc - c0] = 0
         lo = self._lo[r0:r1, c0:c1]
-        cv2.subtract(lo, float(cfg.l_free), dst=lo, mask=scratch)
+        cv2.scaleAdd(scratch.astype(np.float32), -float(cfg.l_free), lo, dst=lo)  # lo - l_free inside
         cv2.max(lo, float(cfg.l_min), dst=lo)
         fr = self._free[r0:r1, c0:c1]
         if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add

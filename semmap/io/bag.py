@@ -7,7 +7,9 @@ and plain numbers and serialises real ROS messages; the reader side gives
 
 from __future__ import annotations
 
+import heapq
 import logging
+import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -529,6 +531,51 @@ class ReadStats:
     skipped: dict[str, int] = field(default_factory=dict)
 
 
+def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]] | None:
+    """The messages of ``conns`` in an uncompressed ROS1 bag, each read on its own; None for other bags.
+
+    rosbags reads every chunk that holds a wanted message whole, so reading a scan stored beside
+    camera images costs the images' bytes as well (a 1.5 MB chunk for a 5 kB scan, and the
+    LiDAR, odometry and camera topics are each read by another process). In an uncompressed
+    chunk, the bag's index gives each message's offset, so only its own record need be read.
+    This reads rosbags' parsed index and record helpers; with a rosbags that lays them out
+    differently, and for compressed chunks (bz2, lz4), None: rosbags' own path then.
+    """
+    try:
+        from rosbags.rosbag1 import reader as r1
+
+        if getattr(reader, "is2", True) or len(reader.readers) != 1:
+            return None
+        bag = reader.readers[0]
+        plain = r1.decompressors[r1.Compression.NONE.value]
+        chunks = bag.chunks
+        if not all(c.decompressor is plain for c in chunks.values()):
+            return None
+        indexes = [bag.indexes[c.id] for c in conns]
+        connmap = {c.id: c for c in bag.connections}
+        bio = bag.bio
+        read_header, read_uint32, read_bytes = r1.Header.read, r1.read_uint32, r1.read_bytes
+        connection_op, message_op = int(r1.RecordType.CONNECTION), int(r1.RecordType.MSGDATA)
+    except (ImportError, AttributeError, KeyError, TypeError):
+        return None
+
+    def records() -> Iterator[tuple[Any, int, bytes]]:
+        for entry in heapq.merge(*indexes):  # time order, as rosbags merges them
+            bio.seek(chunks[entry.chunk_pos].datapos + entry.offset)
+            while True:
+                header = read_header(bio)
+                op = header.get_uint8("op")
+                if op != connection_op:
+                    break
+                bio.seek(read_uint32(bio), os.SEEK_CUR)  # a connection record before the message
+            if op != message_op:
+                raise r1.ReaderError(f"expected message data at chunk {entry.chunk_pos} offset {entry.offset}")
+            data = read_bytes(bio, read_uint32(bio))
+            yield connmap[header.get_uint32("conn")], entry.time, data
+
+    return records()
+
+
 def iter_messages(path: str | Path, topics: Sequence[str],
                   stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
     """Stream ``(topic, bag_time_ns, message)`` for the given topics in bag-time order.
@@ -543,7 +590,8 @@ def iter_messages(path: str | Path, topics: Sequence[str],
     with open_bag(p) as reader:
         conns = [c for c in reader.connections if c.topic in set(topics)]
         try:
-            for conn, t_ns, raw in reader.messages(connections=conns):
+            records = _ros1_records(reader, conns) if conns else None
+            for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except (AnyReaderError, ValueError, IndexError, KeyError) as exc:

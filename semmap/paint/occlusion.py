@@ -91,9 +91,10 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
                   label_image: NDArray[np.integer], p: OcclusionParams) -> NDArray[np.bool_]:
     """Which points are hidden from the camera by nearer points of the same mask.
 
-    ``xy`` (K, 2): the points in the LiDAR plane (base frame, at the image time), every point
-    in front of the camera whose column is in the image; ``eye`` (2,): the camera centre in
-    the same frame; ``labels`` (K,): the label value under each point (0: no mask; read at the
+    ``xy`` (K, 2): the points in the LiDAR plane, every point in front of the camera whose
+    column is in the image, where they were at the image time, in any planar frame (the
+    painter uses the base frame at the scan's reference time); ``eye`` (2,): the camera
+    centre at the image time in the same frame; ``labels`` (K,): the label value under each point (0: no mask; read at the
     image's edge for points above or below it); ``uv`` (K, 2): their pixels (column, row),
     clamped to the image; ``targets`` (K,): the points to judge (inside the image, on a
     mask); ``footprint`` (K,): each point's lateral extent, m (the LiDAR beam spacing at its

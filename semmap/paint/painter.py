@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..classes import ClassTable
 from ..config import PaintConfig, SyncConfig
-from ..geometry import project_points, se2_between, se3_apply, se3_inverse
+from ..geometry import project_points, se2_apply, se2_between, se2_inverse, se2_to_se3, se3_inverse
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
 from .occlusion import OcclusionParams, hidden_points
@@ -65,6 +65,28 @@ class CameraView:
     uv: NDArray[np.float64]
     label: NDArray[np.intp]
     hidden: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Per beam layout: beam directions in the base frame and the deskew weights."""
+
+    key: tuple[float, float, int]  # (angle_min, angle_increment, beams)
+    origin3: NDArray[np.float64]  # (3,) the LiDAR's origin in the base frame
+    dirs_base: NDArray[np.float64]  # (N, 3) unit beam directions in the base frame
+    w_first: NDArray[np.float64]  # (N, 1) weight of the sweep's first-beam motion (1 → 0 up to the middle)
+    w_last: NDArray[np.float64]  # (N, 1) weight of its last-beam motion (0 from the middle → 1)
+
+    @classmethod
+    def of(cls, key: tuple[float, float, int], T_base_lidar: NDArray[np.float64]) -> _Layout:
+        angle_min, inc, n = key
+        a = angle_min + inc * np.arange(n)
+        dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)]) @ T_base_lidar[:3, :3].T
+        k = np.arange(n, dtype=np.float64)
+        mid = n // 2
+        w_first = np.clip((mid - k) / max(mid, 1), 0.0, 1.0)[:, None]
+        w_last = np.clip((k - mid) / max(n - 1 - mid, 1), 0.0, 1.0)[:, None]
+        return cls(key, T_base_lidar[:3, 3].copy(), dirs, w_first, w_last)
 
 
 def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
@@ -118,9 +140,9 @@ class Painter:
             self._bounds = _normalised_bounds(calibration)
             self._pinhole_no_distortion = calibration.intrinsics.model == "pinhole" and not np.any(
                 calibration.intrinsics.D)
+            self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
-        self._dir_key: tuple[float, float, int] | None = None
-        self._dirs = np.zeros((0, 3))
+        self._layout_cache: _Layout | None = None
         #: the odometry pose at the last painted scan's reference time (None if not covered)
         self.last_odom_pose: NDArray[np.float64] | None = None
         #: the last scan's projection into the camera (None when it was not painted)
@@ -129,47 +151,44 @@ class Painter:
         if calibration is not None:
             self._eye = se3_inverse(self.T_cam_base)[:2, 3].copy()  # the camera centre in the base frame
 
-    def _directions(self, scan: Scan) -> NDArray[np.float64]:
-        """Unit beam directions (N, 3) in the LiDAR frame, cached: a LiDAR keeps its beam layout."""
+    def _layout(self, scan: Scan) -> _Layout:
+        """What depends only on the beam layout, cached: a LiDAR keeps its layout."""
         key = (scan.angle_min, scan.angle_increment, scan.ranges.size)
-        if self._dir_key != key:
-            a = scan.angles
-            self._dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
-            self._dir_key = key
-        return self._dirs
+        if self._layout_cache is None or self._layout_cache.key != key:
+            self._layout_cache = _Layout.of(key, self.T_base_lidar)
+        return self._layout_cache
 
-    def _beams(self, scan: Scan) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
-        """LiDAR-frame points (N, 3), the valid-return mask, and the free-space range per beam."""
+    def _beams(self, scan: Scan, layout: _Layout) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+        """Base-frame points (N, 3), the valid-return mask, and the free-space range per beam."""
         r = scan.ranges.astype(np.float64)
         lo = max(scan.range_min, 1e-3)
-        with np.errstate(invalid="ignore"):
-            hit = (r >= lo) & (r <= scan.range_max)  # False for NaN and ±inf alike
-            # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
-            no_return = r > scan.range_max
-            below = np.isfinite(r) & (r < lo)
-            if self.paint_cfg.below_range_min == "no_return":  # driver error codes meaning "nothing seen"
-                no_return |= below
+        # comparisons with NaN are False (and numpy does not warn about them)
+        hit = (r >= lo) & (r <= scan.range_max)  # False for NaN and ±inf alike
+        # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
+        no_return = r > scan.range_max
+        below = (r < lo) & (r > -np.inf)
+        if self.paint_cfg.below_range_min == "no_return":  # driver error codes meaning "nothing seen"
+            no_return |= below
         self.stats.beams += r.size
-        self.stats.below_range_min += int(below.sum())
+        self.stats.below_range_min += int(np.count_nonzero(below))
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
-        return self._directions(scan) * free[:, None], hit, free
+        return layout.origin3 + layout.dirs_base * free[:, None], hit, free
 
     def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
         """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
         n = scan.ranges.size
-        pts_lidar, hit, _ = self._beams(scan)
-        pts_base = se3_apply(self.T_base_lidar, pts_lidar)  # (N, 3) at each beam's own time
+        layout = self._layout(scan)
+        pts_base, hit, _ = self._beams(scan, layout)  # (N, 3) at each beam's own time
         origin = self.T_base_lidar[:2, 3]
         dt_ns = int(round(scan.time_increment * 1e9)) if scan.time_increment > 0 else 0
-        beam_t = scan.stamp_ns + dt_ns * np.arange(n, dtype=np.int64)
-        t_ref = int(beam_t[n // 2]) if n else scan.stamp_ns
+        t_ref = scan.stamp_ns + dt_ns * (n // 2)  # the middle beam's time
         self.stats.scans += 1
 
-        xy = pts_base[:, :2].copy()
-        origins = np.repeat(origin[None, :], n, axis=0)
+        xy = pts_base[:, :2]
         poses = None
         if odom is not None:
-            poses = odom.interpolate(np.array([beam_t[0], t_ref, beam_t[-1]], dtype=np.int64))
+            poses = odom.interpolate(np.array([scan.stamp_ns, t_ref, scan.stamp_ns + dt_ns * max(n - 1, 0)],
+                                              dtype=np.int64))
             if poses is None:  # the sweep's ends may not be covered; the reference alone may be
                 ref = odom.interpolate(t_ref)
                 self.last_odom_pose = None if ref is None else np.asarray(ref)
@@ -177,23 +196,19 @@ class Painter:
                 self.last_odom_pose = poses[1].copy()
         else:
             self.last_odom_pose = None
-        if self.sync_cfg.deskew and dt_ns and n > 2:
-            if poses is not None:
-                # the base pose at each beam's time, seen from the reference (middle) beam: the
-                # sweep lasts tens of ms, so the motion is interpolated linearly from its two ends
-                rel_first = se2_between(poses[1], poses[0])
-                rel_last = se2_between(poses[1], poses[2])
-                k = np.arange(n, dtype=np.float64)
-                mid = n // 2
-                w_first = np.clip((mid - k) / mid, 0.0, 1.0)[:, None]
-                w_last = np.clip((k - mid) / (n - 1 - mid), 0.0, 1.0)[:, None]
-                rel = w_first * rel_first + w_last * rel_last
-                c, s = np.cos(rel[:, 2]), np.sin(rel[:, 2])
-                xy = np.column_stack([rel[:, 0] + c * xy[:, 0] - s * xy[:, 1],
-                                      rel[:, 1] + s * xy[:, 0] + c * xy[:, 1]])
-                origins = np.column_stack([rel[:, 0] + c * origin[0] - s * origin[1],
-                                           rel[:, 1] + s * origin[0] + c * origin[1]])
-                self.stats.deskewed += 1
+        if self.sync_cfg.deskew and dt_ns and n > 2 and poses is not None:
+            # the base pose at each beam's time, seen from the reference (middle) beam: the sweep
+            # lasts tens of ms, so the motion is interpolated linearly from its two ends (the
+            # middle beam, and the LiDAR's origin at its time, stay where they are)
+            rel = layout.w_first * se2_between(poses[1], poses[0]) + layout.w_last * se2_between(poses[1], poses[2])
+            c, s = np.cos(rel[:, 2]), np.sin(rel[:, 2])
+            x, y = xy[:, 0], xy[:, 1]
+            xy = np.empty((n, 2))
+            xy[:, 0] = rel[:, 0] + c * x - s * y
+            xy[:, 1] = rel[:, 1] + s * x + c * y
+            self.stats.deskewed += 1
+        else:
+            xy = xy.copy()
 
         mobility = np.zeros(n, np.uint8)
         class_id = np.full(n, -1, np.int16)
@@ -203,7 +218,7 @@ class Painter:
             self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id)
         return PaintedScan(
             stamp_ns=t_ref,
-            origin=origins[n // 2] if n else origin,
+            origin=origin,
             points=xy,
             hit=hit,
             mobility=mobility,
@@ -221,19 +236,24 @@ class Painter:
         if seg.label.shape != (intr.height, intr.width):
             raise ValueError(f"label image is {seg.label.shape[1]}x{seg.label.shape[0]}, calibration says "
                              f"{intr.width}x{intr.height}")
-        pts_xy = xy
+        # the camera sees the points where they were at the image's capture time: T_cam_base at the image
+        # time, composed with the reference-time base pose seen from the image time; the occlusion filter
+        # works in the reference-time base frame, with the camera centre moved into it (a rigid motion
+        # keeps the distances and angles it compares)
+        T_cam = self.T_cam_base
+        eye = self._eye
         if self.sync_cfg.motion_compensation and odom is not None and seg.stamp_ns != t_ref:
             poses = odom.interpolate(np.array([seg.stamp_ns, t_ref], dtype=np.int64))
             if poses is not None:
                 rel = se2_between(poses[0], poses[1])  # reference-time base pose seen from the image time
-                c, s = np.cos(rel[2]), np.sin(rel[2])
-                pts_xy = np.column_stack([rel[0] + c * xy[:, 0] - s * xy[:, 1], rel[1] + s * xy[:, 0] + c * xy[:, 1]])
+                T_cam = T_cam @ se2_to_se3(rel)
+                eye = se2_apply(se2_inverse(rel), eye)
                 self.stats.motion_compensated += 1
         sel = np.nonzero(hit)[0]
         if sel.size == 0:
             return
-        p_base = np.column_stack([pts_xy[sel], z[sel]])
-        p_cam = se3_apply(self.T_cam_base, p_base)
+        xy_sel = xy[sel]
+        p_cam = xy_sel @ T_cam[:3, :2].T + (z[sel, None] * T_cam[None, :3, 2] + T_cam[None, :3, 3])
         zc = p_cam[:, 2]
         x0, x1, y0, y1 = self._bounds
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -242,8 +262,9 @@ class Painter:
         front = ahead & (yn >= y0) & (yn <= y1)
         if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
             k = intr.K
-            with np.errstate(divide="ignore", invalid="ignore"):
-                uv = np.column_stack([k[0, 0] * xn + k[0, 1] * yn + k[0, 2], k[1, 1] * yn + k[1, 2]])
+            uv = np.empty((sel.size, 2))
+            uv[:, 0] = k[0, 0] * xn + k[0, 1] * yn + k[0, 2]
+            uv[:, 1] = k[1, 1] * yn + k[1, 2]
             inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < intr.width - 0.5) & (uv[:, 1] >= -0.5) & (
                 uv[:, 1] < intr.height - 0.5)
         else:
@@ -255,15 +276,15 @@ class Painter:
         if not ok.any():
             return
         px = np.rint(np.where(seen[:, None], uv, 0.0)).astype(np.intp)
-        px[:, 0] = np.clip(px[:, 0], 0, intr.width - 1)
-        px[:, 1] = np.clip(px[:, 1], 0, intr.height - 1)
+        np.maximum(px, 0, out=px)
+        np.minimum(px, self._px_max, out=px)
         labels = seg.label[px[seen, 1], px[seen, 0]].astype(np.intp)
         labels = np.where(labels <= len(self.class_names), labels, 0)  # values beyond the class list: no object
         hidden = np.zeros(labels.size, bool)
         if self._occlusion is not None:
             # visibility from the camera's own viewpoint, at the image time, in the LiDAR plane
             s_idx = sel[seen]
-            hidden = hidden_points(pts_xy[s_idx], self._eye, labels, px[seen].astype(np.float64), ok[seen],
+            hidden = hidden_points(xy[s_idx], eye, labels, px[seen].astype(np.float64), ok[seen],
                                    footprint[s_idx], seg.label, self._occlusion)
         in_img = ok[seen]
         labels, hidden = labels[in_img], hidden[in_img]

@@ -116,8 +116,8 @@ class Se2Ekf:
         self._f.F = np.array([[1.0, 0.0, -s * dx - c * dy],
                               [0.0, 1.0, c * dx - s * dy],
                               [0.0, 0.0, 1.0]])
-        g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        self._f.Q = (noise_scale ** 2) * (g @ odometry_noise(u, self.cfg) @ g.T)
+        # the increment's noise is isotropic in x and y, so rotating it into the map frame leaves it as is
+        self._f.Q = (noise_scale ** 2) * odometry_noise(u, self.cfg)
         self._f.predict(u=u)
 
     def innovation(self, z: ArrayLike) -> NDArray[np.float64]:

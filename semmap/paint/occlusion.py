@@ -96,7 +96,7 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     painter uses the base frame at the scan's reference time); ``eye`` (2,): the camera
     centre at the image time in the same frame; ``labels`` (K,): the label value under each point (0: no mask; read at the
     image's edge for points above or below it); ``uv`` (K, 2): their pixels (column, row),
-    clamped to the image; ``targets`` (K,): the points to judge (inside the image, on a
+    clamped to the image (whole pixels if integers); ``targets`` (K,): the points to judge (inside the image, on a
     mask); ``footprint`` (K,): each point's lateral extent, m (the LiDAR beam spacing at its
     range); ``label_image``: the segmentation. Returns a (K,) mask, true only for targets.
     """
@@ -120,7 +120,10 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     t = t[dist[t] > dist[o].min() + least]
     if t.size == 0:
         return hidden
+    # bearings from the camera, relative to a target's: points in front of the camera span less than a
+    # half turn, so differences of these need no wrapping
     bearing = np.arctan2(rel[:, 1], rel[:, 0])
+    bearing = (bearing - bearing[t[0]] + np.pi) % (2 * np.pi) - np.pi
     d_t = dist[t]
     same = labels[t][:, None] == labels[o][None, :]
     if not (same & (dist[o][None, :] < (d_t - least)[:, None])).any():
@@ -129,7 +132,9 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     limit = d_t - (p.depth_margin + p.depth_margin_rel * d_t)
     nearer = same & (dist[o][None, :] < limit[:, None])
     da = bearing[o][None, :] - bearing[t][:, None]
-    da = (da + np.pi) % (2 * np.pi) - np.pi
+    if np.abs(da).max() >= np.pi:  # points around the camera (not in front of it): wrap
+        da = (da + np.pi) % (2 * np.pi) - np.pi
+    lateral = dist[o][None, :] * np.abs(np.sin(da))  # each occluder's offset from each target's ray, m
     # runs: neighbouring scan points of one surface; a run nearer than the points beside it is a foreground
     # object in the LiDAR's eyes (a chair's rear leg seen through the gap between the front ones), which
     # only the same-ray test may hide
@@ -150,7 +155,7 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     # 2. a bridged gap: the nearest nearer occluders left and right, close together, joined by the mask
     if p.max_gap > 0:
         # occluders whose lateral offset from p's ray (at their own distance) is within max_gap
-        reach = nearer & (dist[o][None, :] * np.abs(np.sin(da)) <= p.max_gap)
+        reach = nearer & (lateral <= p.max_gap)
         left = np.where(reach & (da < 0), da, -np.inf)
         right = np.where(reach & (da > 0), da, np.inf)
         i_l, i_r = left.argmax(axis=1), right.argmin(axis=1)
@@ -167,7 +172,7 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     #    a nearer occluder on one side only, a little aside, joined to p by the mask
     if (p.edge_px > 0 or p.overhang > 0) and not hid_t.all():
         du = np.abs(uv[o, 0][None, :] - uv[t, 0][:, None])
-        aside = nearer & ((du <= p.edge_px) | (dist[o][None, :] * np.abs(np.sin(da)) <= p.overhang))
+        aside = nearer & ((du <= p.edge_px) | (lateral <= p.overhang))
         du = np.where(aside, du, np.inf)
         j = du.argmin(axis=1)
         c = np.nonzero(~hid_t & free & np.isfinite(du[np.arange(t.size), j]))[0]
@@ -184,7 +189,7 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
         if c.size:
             front = same[c] & (
                 dist[o][None, :] < d_t[c][:, None] - p.line_depth_margin) & (
-                dist[o][None, :] * np.abs(np.sin(da[c])) <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
+                lateral[c] <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
             score = np.where(front, np.abs(da[c]), np.inf)
             j = score.argmin(axis=1)
             has = np.isfinite(score[np.arange(c.size), j])
@@ -206,8 +211,11 @@ class _Components:
     def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
         self.image = label_image
         h, w = label_image.shape
-        self.col = np.minimum(np.maximum(np.rint(uv[:, 0]).astype(np.intp), 0), w - 1)
-        self.row = np.minimum(np.maximum(np.rint(uv[:, 1]).astype(np.intp), 0), h - 1)
+        if uv.dtype.kind in "iu":  # whole pixels, clamped to the image already (the painter's)
+            self.col, self.row = uv[:, 0], uv[:, 1]
+        else:
+            self.col = np.minimum(np.maximum(np.rint(uv[:, 0]).astype(np.intp), 0), w - 1)
+            self.row = np.minimum(np.maximum(np.rint(uv[:, 1]).astype(np.intp), 0), h - 1)
         self.labels = labels
         # a camera frame is painted with several scans: keep its regions while the same image comes back
         last = _Components._last

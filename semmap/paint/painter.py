@@ -284,7 +284,7 @@ class Painter:
         if self._occlusion is not None:
             # visibility from the camera's own viewpoint, at the image time, in the LiDAR plane
             s_idx = sel[seen]
-            hidden = hidden_points(xy[s_idx], eye, labels, px[seen].astype(np.float64), ok[seen],
+            hidden = hidden_points(xy[s_idx], eye, labels, px[seen], ok[seen],
                                    footprint[s_idx], seg.label, self._occlusion)
         in_img = ok[seen]
         labels, hidden = labels[in_img], hidden[in_img]

@@ -113,11 +113,13 @@ def _via_rosbags(bag, topics):
         return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages(connections=conns)]
 
 
-def test_streamed_messages_are_rosbags_messages(short_tour):
+def test_streamed_messages_are_rosbags_messages(short_tour, monkeypatch):
     """semmap reads uncompressed ROS1 messages record by record (not whole chunks): same messages, same order."""
+    import semmap.io.bag as bag_module
     from semmap.io.bag import _ros1_records, iter_messages
 
     theirs = _via_rosbags(short_tour.bag, READ_TOPICS)
+    monkeypatch.setattr(bag_module, "_SPARSE_MIN_BYTES", 0)  # record by record even where chunks would do
     with open_bag(short_tour.bag) as reader:
         conns = [c for c in reader.connections if c.topic in READ_TOPICS]
         records = _ros1_records(reader, conns)
@@ -129,6 +131,38 @@ def test_streamed_messages_are_rosbags_messages(short_tour):
     assert {topic for topic, _ in ours} == set(READ_TOPICS)
 
 
+def _rewrite(src, dst, topics, compression=None):
+    """A copy of a ROS1 bag with only ``topics``, compressed or not."""
+    from rosbags.rosbag1 import Writer
+
+    with open_bag(src) as reader:
+        writer = Writer(dst)
+        if compression:
+            writer.set_compression(compression)
+        with writer:
+            out = {}
+            for conn in reader.connections:
+                if conn.topic in topics and conn.id not in out:
+                    out[conn.id] = writer.add_connection(conn.topic, conn.msgtype, msgdef=conn.msgdef.data,
+                                                         md5sum=conn.digest)
+            for conn, t, raw in reader.messages(connections=[c for c in reader.connections if c.id in out]):
+                writer.write(out[conn.id], t, raw)
+
+
+def test_record_by_record_only_where_chunks_hold_other_bytes(short_tour, tmp_path):
+    """Scans beside camera images are read on their own; in a LiDAR-only bag whole chunks are cheaper."""
+    if short_tour.bag.suffix != ".bag":
+        pytest.skip("ROS1 only")
+    from semmap.io.bag import _ros1_records
+
+    with open_bag(short_tour.bag) as reader:
+        assert _ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is not None
+    lidar_only = tmp_path / "lidar.bag"
+    _rewrite(short_tour.bag, lidar_only, ["/scan", "/odom"])
+    with open_bag(lidar_only) as reader:
+        assert _ros1_records(reader, list(reader.connections)) is None
+
+
 def test_compressed_ros1_chunks_are_read_by_rosbags(short_tour, tmp_path):
     """A bz2/lz4 ROS1 bag must be decompressed chunk by chunk: rosbags' own path reads it, unchanged."""
     if short_tour.bag.suffix != ".bag":
@@ -138,18 +172,8 @@ def test_compressed_ros1_chunks_are_read_by_rosbags(short_tour, tmp_path):
     from semmap.io.bag import _ros1_records, iter_messages
 
     packed = tmp_path / "lz4.bag"
-    with open_bag(short_tour.bag) as reader:
-        writer = Writer(packed)
-        writer.set_compression(Writer.CompressionFormat.LZ4)
-        with writer:
-            out = {}
-            for conn in reader.connections:
-                if conn.topic in READ_TOPICS and conn.id not in out:
-                    out[conn.id] = writer.add_connection(conn.topic, conn.msgtype, msgdef=conn.msgdef.data,
-                                                         md5sum=conn.digest)
-            for conn, t, raw in reader.messages(connections=[c for c in reader.connections if c.id in out]):
-                writer.write(out[conn.id], t, raw)
+    _rewrite(short_tour.bag, packed, READ_TOPICS, Writer.CompressionFormat.LZ4)
     with open_bag(packed) as reader:
-        assert _ros1_records(reader, list(reader.connections)) is None
+        assert _ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is None
     assert [(topic, t) for topic, t, _ in iter_messages(packed, READ_TOPICS)] == \
         [(topic, t) for topic, t, _ in _via_rosbags(short_tour.bag, READ_TOPICS)]

@@ -531,6 +531,11 @@ class ReadStats:
     skipped: dict[str, int] = field(default_factory=dict)
 
 
+#: read record by record when whole chunks would cost more than this per wanted message (about where
+#: copying the chunk costs what seeking to each message does)
+_SPARSE_MIN_BYTES = 64 * 1024
+
+
 def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]] | None:
     """The messages of ``conns`` in an uncompressed ROS1 bag, each read on its own; None for other bags.
 
@@ -538,8 +543,9 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
     camera images costs the images' bytes as well (a 1.5 MB chunk for a 5 kB scan, and the
     LiDAR, odometry and camera topics are each read by another process). In an uncompressed
     chunk, the bag's index gives each message's offset, so only its own record need be read.
-    This reads rosbags' parsed index and record helpers; with a rosbags that lays them out
-    differently, and for compressed chunks (bz2, lz4), None: rosbags' own path then.
+    None (rosbags' own path) for compressed chunks (bz2, lz4), for chunks that hold mostly
+    wanted bytes (a LiDAR-only bag), and with a rosbags that lays out its parsed index and
+    record helpers, which this reads, differently.
     """
     try:
         from rosbags.rosbag1 import reader as r1
@@ -552,6 +558,10 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
         if not all(c.decompressor is plain for c in chunks.values()):
             return None
         indexes = [bag.indexes[c.id] for c in conns]
+        wanted = sum(len(i) for i in indexes)
+        chunk_bytes = sum(chunks[pos].datasize for pos in {e.chunk_pos for i in indexes for e in i})
+        if chunk_bytes < _SPARSE_MIN_BYTES * wanted:  # the chunks are mostly what is wanted: read them whole
+            return None
         connmap = {c.id: c for c in bag.connections}
         bio = bag.bio
         read_header, read_uint32, read_bytes = r1.Header.read, r1.read_uint32, r1.read_bytes

@@ -182,18 +182,21 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     #    mask, and a point of the mask stands in front of it (by less than the depth margin: a bed
     #    against a wall); an object's own far side does not run off its mask
     if p.line_step > 0 and not hid_t.all():
-        off = np.zeros(int(run[-1]) + 1, bool)
-        off[run[labels == 0]] = True
-        off = _through_shadows(off, xy, dist, first, last, p.max_gap)
-        c = np.nonzero(~hid_t & off[run[t]])[0]
-        if c.size:
-            front = same[c] & (
-                dist[o][None, :] < d_t[c][:, None] - p.line_depth_margin) & (
-                lateral[c] <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
-            score = np.where(front, np.abs(da[c]), np.inf)
-            j = score.argmin(axis=1)
-            has = np.isfinite(score[np.arange(c.size), j])
+        # the nearest such point of the mask in front of each target not hidden yet
+        c = np.nonzero(~hid_t)[0]
+        front = same[c] & (dist[o][None, :] < d_t[c][:, None] - p.line_depth_margin) & (
+            lateral[c] <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
+        score = np.where(front, np.abs(da[c]), np.inf)
+        j = score.argmin(axis=1)
+        has = np.isfinite(score[np.arange(c.size), j])
+        if has.any():
             c, j = c[has], j[has]
+            # ... whose own surface runs off the mask
+            off = np.zeros(int(run[-1]) + 1, bool)
+            off[run[labels == 0]] = True
+            off = _through_shadows(off, xy, dist, first, last, p.max_gap)
+            line = off[run[t[c]]]
+            c, j = c[line], j[line]
             if c.size:
                 hid_t[c] = masks.joined(t[c], o[j])
     hidden[t] = hid_t
@@ -241,13 +244,14 @@ class _Components:
         ca = self.col[a]
         cols = np.rint(ca[:, None] + (self.col[b] - ca)[:, None] * _ROW_STEPS).astype(np.intp)
         on = self.image[self.row[a][:, None], cols] == self.labels[a][:, None]
-        return np.count_nonzero(on, axis=1) >= min_share * _ROW_STEPS.size
+        return on.sum(axis=1) >= min_share * _ROW_STEPS.size
 
     def joined(self, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Whether a's and b's pixels lie on one connected region of a's mask."""
         out = np.zeros(a.size, bool)
-        for value in np.unique(self.labels[a]):
-            m = self.labels[a] == value
+        la = self.labels[a]
+        for value in (la[:1] if (la == la[0]).all() else np.unique(la)):  # mostly one label
+            m = la == value
             x, y, cc = self._of(int(value))
             ra = self._region(cc, x, y, a[m])
             out[m] = (ra > 0) & (ra == self._region(cc, x, y, b[m]))
@@ -286,7 +290,7 @@ def _through_shadows(off: NDArray[np.bool_], xy: NDArray[np.float64], dist: NDAr
         new = out.copy()
         new[2:] |= ok & out[:-2]
         new[:-2] |= ok & out[2:]
-        if np.array_equal(new, out):
+        if not (new ^ out).any():
             break
         out = new
     return out

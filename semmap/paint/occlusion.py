@@ -94,11 +94,12 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     ``xy`` (K, 2): the points in the LiDAR plane, every point in front of the camera whose
     column is in the image, where they were at the image time, in any planar frame (the
     painter uses the base frame at the scan's reference time); ``eye`` (2,): the camera
-    centre at the image time in the same frame; ``labels`` (K,): the label value under each point (0: no mask; read at the
-    image's edge for points above or below it); ``uv`` (K, 2): their pixels (column, row),
-    clamped to the image (whole pixels if integers); ``targets`` (K,): the points to judge (inside the image, on a
-    mask); ``footprint`` (K,): each point's lateral extent, m (the LiDAR beam spacing at its
-    range); ``label_image``: the segmentation. Returns a (K,) mask, true only for targets.
+    centre at the image time in the same frame; ``labels`` (K,): the label value under each
+    point (0: no mask; read at the image's edge for points above or below it); ``uv`` (K, 2):
+    their pixels (column, row), clamped to the image (whole pixels if integers); ``targets``
+    (K,): the points to judge (inside the image, on a mask); ``footprint`` (K,): each point's
+    lateral extent, m (the LiDAR beam spacing at its range); ``label_image``: the
+    segmentation. Returns a (K,) mask, true only for targets.
     """
     k = xy.shape[0]
     hidden = np.zeros(k, bool)

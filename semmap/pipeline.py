@@ -98,6 +98,7 @@ class _Pipeline:
         self.counts = {"scans": 0, "scans_without_image": 0, "scans_without_odometry": 0, "odometry": 0,
                        "bad_scans": 0, "scans_out_of_order": 0}
         self._last_scan_ns: int | None = None
+        self.cpu_s: dict[str, float] = {}  # CPU time of the streaming loop, per process
         self.mobility_hits = np.zeros(4, np.int64)
         self.class_hits = np.zeros(len(class_names), np.int64)
 
@@ -265,6 +266,7 @@ def build(
         stats = ReadStats()
         n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan)
         t_loop = time.perf_counter()
+        cpu_loop = time.process_time()
         for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats):
             if topic == tinfo.topics.scan:
                 pipe.on_scan(t_bag, msg)
@@ -279,6 +281,9 @@ def build(
         pipe.trace.poses = pipe.result.poses
         pipe.timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
         loop_s = time.perf_counter() - t_loop
+        pipe.cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **pipe.result.cpu_s}
+        if "cpu_s" in pipe.frame_counts:
+            pipe.cpu_s["frames"] = pipe.frame_counts["cpu_s"]
         pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.hand_over)
         if progress is not None:
             progress(n_scan_msgs, n_scan_msgs)

@@ -170,6 +170,7 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
         cfg = SegmentationConfig.model_validate(seg_cfg)
         frames = _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts)
         parent.put(out, ("ready",))
+        cpu0 = time.process_time()
         for seg in frames:
             if slots is not None and seg.label.shape == slots.shape[1:]:
                 i = parent.get(free_slots)  # blocks while the mapper holds every slot: back-pressure
@@ -179,6 +180,7 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
                 parent.put(out, ("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names,
                                  seg.confidence))
         counts["peak_rss_mb"] = round(peak_rss_mb(), 1)
+        counts["cpu_s"] = round(time.process_time() - cpu0, 3)
         parent.put(out, ("done", counts))
     except SemmapError as exc:
         out.put(("error", type(exc).__name__, str(exc)))
@@ -309,6 +311,7 @@ class MapperResult:
     register_busy_s: float
     fuse_busy_s: float
     peak_rss_mb: dict[str, float] = field(default_factory=dict)  # per worker process
+    cpu_s: dict[str, float] = field(default_factory=dict)  # CPU time of each worker process after start-up
 
 
 class InProcessMapper:
@@ -351,6 +354,7 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
         parent = _Parent()
         registrar = Registrar(RegistrationConfig.model_validate(cfg))
         outbox.put(("ready",))
+        cpu0 = time.process_time()
         poses: list[NDArray[np.float64]] = []
         busy = 0.0
         while True:
@@ -367,7 +371,7 @@ def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any
             parent.put(fusion_inbox, out)
         parent.put(fusion_inbox, None)
         outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy,
-                    peak_rss_mb()))
+                    peak_rss_mb(), time.process_time() - cpu0))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         fusion_inbox.put(None)
         outbox.put(("error", type(exc).__name__, f"registration worker failed: {type(exc).__name__}: {exc}"))
@@ -384,6 +388,7 @@ def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox
         parent = _Parent()
         grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
         outbox.put(("ready",))
+        cpu0 = time.process_time()
         busy = 0.0
         while True:
             batch = parent.get(inbox)
@@ -393,7 +398,7 @@ def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox
             for pose, painted in batch:
                 grid.integrate(pose, painted)
             busy += time.perf_counter() - t0
-        outbox.put(("layers", grid.layers(), busy, peak_rss_mb()))
+        outbox.put(("layers", grid.layers(), busy, peak_rss_mb(), time.process_time() - cpu0))
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         outbox.put(("error", type(exc).__name__, f"fusion worker failed: {type(exc).__name__}: {exc}"))
 
@@ -476,10 +481,11 @@ class MapperWorkers:
             self._put(self._batch)
             self._batch = []
         self._put(None)
-        _, poses, stats, reg_busy, reg_rss = self._get(self._from_reg)
-        _, layers, fuse_busy, fuse_rss = self._get(self._from_fuse)
+        _, poses, stats, reg_busy, reg_rss, reg_cpu = self._get(self._from_reg)
+        _, layers, fuse_busy, fuse_rss, fuse_cpu = self._get(self._from_fuse)
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
-                            {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)})
+                            {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
+                            {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)})
 
     def close(self) -> None:
         for p in self._procs:

@@ -164,14 +164,16 @@ def main() -> int:
                 summary = json.loads(Path(res["summary_path"]).read_text())
                 rss = summary["peak_rss_mb"] + sum(summary.get("peak_rss_mb_workers", {}).values())
                 runs.append((summary["throughput"]["scans_per_s"], summary["throughput"]["real_time_factor"],
-                             rss, summary["counts"]["scans"], summary["tour"]["duration_s"]))
+                             rss, summary["counts"]["scans"], summary["tour"]["duration_s"],
+                             summary["cpu_s"]["per_scan_ms"]))
             if runs:
                 sps = sorted(r[0] for r in runs)
                 speed.append({"scenario": sc, "runs": len(runs), "scans_per_s_median": sps[len(sps) // 2],
                               "scans_per_s_min": sps[0], "scans_per_s_max": sps[-1],
                               "real_time_factor_median": sorted(r[1] for r in runs)[len(runs) // 2],
                               "peak_rss_mb": max(r[2] for r in runs), "scans": runs[0][3],
-                              "tour_s": runs[0][4]})
+                              "tour_s": runs[0][4],
+                              "cpu_ms_per_scan_median": sorted(r[5] for r in runs)[len(runs) // 2]})
         legs = []
         leg_dir = args.data / "leg_tracker"
         if leg_dir.is_dir():
@@ -198,12 +200,12 @@ def main() -> int:
         print("\nThroughput of `semmap build` (EKF fusion; read, paint, register and fuse, label images from the "
               f"bag so no segmentation model runs; median of {args.speed_runs} runs):\n")
         print("| scenario | scans | tour (s) | scans/s (median) | range | real-time factor | "
-              "peak RSS, all processes (MB) |")
-        print("|---|---:|---:|---:|---:|---:|---:|")
+              "CPU ms per scan, all processes (median) | peak RSS, all processes (MB) |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|")
         for r in speed:
             print(f"| {r['scenario']} | {r['scans']} | {r['tour_s']:.0f} | {r['scans_per_s_median']:.0f} | "
                   f"{r['scans_per_s_min']:.0f}-{r['scans_per_s_max']:.0f} | {r['real_time_factor_median']:.0f}x | "
-                  f"{r['peak_rss_mb']:.0f} |")
+                  f"{r['cpu_ms_per_scan_median']:.2f} | {r['peak_rss_mb']:.0f} |")
     if legs:
         print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP, "
               "`paint.below_range_min: no_return`):\n")

@@ -182,6 +182,8 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         + ("" if not s.get("peak_rss_mb_workers") else ", " + ", ".join(
             f"{v:.0f} MB in the {k} worker" for k, v in s["peak_rss_mb_workers"].items())) + ".",
         "",
+        _cpu_line(s.get("cpu_s")),
+        "",
         "## Messages",
         "",
         "| topic | read | skipped |",
@@ -190,6 +192,14 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def _cpu_line(cpu: dict[str, float] | None) -> str:
+    if not cpu:
+        return ""
+    parts = ", ".join(f"{k} {v:.2f} s" for k, v in cpu.items() if k not in ("total", "per_scan_ms"))
+    return (f"CPU time of the loop: {parts}; {cpu['total']:.2f} s in all, {cpu['per_scan_ms']:.2f} ms per scan "
+            "(with fewer cores than busy processes, the sum bounds the speed).")
 
 
 def _occlusion_line(o: dict | None) -> str:

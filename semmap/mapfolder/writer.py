@@ -141,7 +141,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
         "messages": {"read": stats.read, "skipped": stats.skipped,
                      "odometry_out_of_order": pipe.odom.out_of_order if pipe.odom is not None else 0},
         "counts": {**pipe.counts, **{k: v for k, v in pipe.frame_counts.items()
-                                     if k not in ("segment_ms", "peak_rss_mb")}},
+                                     if k not in ("segment_ms", "peak_rss_mb", "cpu_s")}},
         "painting": {
             "class_list": cfg.segmentation.class_list if pipe.class_names else None,
             "backend": cfg.segmentation.backend if pipe.class_names else None,
@@ -180,6 +180,10 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
                       "loop": round(loop, 3), "total": round(elapsed, 3),
                       "segmentation_busy": round(pipe.frame_counts.get("segment_ms", 0) / 1000.0, 3),
                       "workers": cfg.workers},
+        # CPU time of the streaming loop per process: on a machine with fewer cores than busy
+        # processes, their sum, not the busiest one, bounds the speed
+        "cpu_s": {**pipe.cpu_s, "total": round(sum(pipe.cpu_s.values()), 3),
+                  "per_scan_ms": round(1000 * sum(pipe.cpu_s.values()) / n, 3) if n else None},
         "throughput": {
             "scans_per_s": round(n / loop, 1) if loop > 0 else None,
             "scans_per_s_end_to_end": round(n / elapsed, 1) if elapsed > 0 else None,

@@ -148,7 +148,8 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "scans_painted": pipe.painter.stats.painted,
             "readings_below_range_min_fraction": round(pipe.painter.stats.below_range_min
                                                        / max(pipe.painter.stats.beams, 1), 4),
-            "points_in_view_fraction": round(pipe.painter.stats.points_in_view / max(pipe.painter.stats.points_total, 1), 4),
+            "points_in_view_fraction": round(pipe.painter.stats.points_in_view
+                                             / max(pipe.painter.stats.points_total, 1), 4),
             "occlusion_filter": {
                 "on": cfg.paint.occlusion_filter,
                 "points_relabelled": pipe.painter.stats.occlusion_relabelled,

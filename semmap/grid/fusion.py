@@ -2,7 +2,9 @@
 
 :class:`SemanticGrid` keeps, per cell of a window that grows with the area observed:
 
-* ``log_odds`` (float32): occupancy evidence, clamped to ``[l_min, l_max]``.
+* ``log_odds`` (float32): occupancy evidence, clamped to ``[l_min, l_max]``. Inside, it is kept in
+  steps of 0.001 as uint16 counted up from ``l_min``: half the memory of float32, and a
+  saturating subtraction clamps at ``l_min`` in the same pass.
 * ``hits`` / ``free`` (uint16, saturating): how many scans ended a return in the cell / crossed it.
 * ``mobility`` (uint16, 4 layers): how many scans ended a return in the cell painted with
   each :class:`~semmap.records.Mobility` value (0 unknown, 1 static, 2 semi-static,
@@ -24,7 +26,7 @@ scan's polygon (the LiDAR origin followed by the beam end points in scan order) 
 * the cells a return of the same scan ended in are removed from the mask, so a ray never
   clears its own end cell.
 
-The log-odds window of the bounding box is then updated with two OpenCV passes; hits, mobility
+The log-odds window of the bounding box is then updated with one OpenCV pass; hits, mobility
 and class counts with one sort of the scan's (cell, code) keys. A 541-beam indoor scan costs
 ~0.3-0.5 ms on one core.
 """
@@ -43,7 +45,7 @@ from numpy.typing import NDArray
 from ..config import GridConfig
 from ..records import GridSpec, Mobility, PaintedScan
 
-__all__ = ["N_MOBILITY", "GridLayers", "SemanticGrid"]
+__all__ = ["LOG_ODDS_STEP", "N_MOBILITY", "GridLayers", "SemanticGrid"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,7 @@ N_MOBILITY = len(Mobility)
 _SHIFT = 4  # fractional bits of the polygon vertices handed to cv2.fillPoly
 _U16_MAX = np.iinfo(np.uint16).max
 _KERNEL3 = np.ones((3, 3), np.uint8)
+LOG_ODDS_STEP = 1e-3  #: the resolution log-odds are kept at (l_occ, l_free and the clamps are rounded to it)
 
 
 def _frozen(a: NDArray[np.generic]) -> NDArray[np.generic]:
@@ -141,7 +144,14 @@ class SemanticGrid:
         # window: origin (multiple of the resolution) and arrays; None until the first scan
         self._ox = 0.0
         self._oy = 0.0
-        self._lo: NDArray[np.float32] = np.zeros((0, 0), np.float32)
+        # log-odds as uint16 steps above l_min: l = l_min + q * LOG_ODDS_STEP
+        self._q_zero = round(-self.cfg.l_min / LOG_ODDS_STEP)  # log-odds 0: nothing known
+        self._q_max = round((self.cfg.l_max - self.cfg.l_min) / LOG_ODDS_STEP)
+        if self._q_max > _U16_MAX:
+            raise ValueError(f"l_max - l_min must be at most {_U16_MAX * LOG_ODDS_STEP:g}")
+        self._q_free = max(1, round(self.cfg.l_free / LOG_ODDS_STEP))
+        self._q_occ = max(1, round(self.cfg.l_occ / LOG_ODDS_STEP))
+        self._lo: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
         self._hits: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
         self._free: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
         self._mob: NDArray[np.uint16] = np.zeros((N_MOBILITY, 0, 0), np.uint16)
@@ -186,7 +196,7 @@ class SemanticGrid:
         oy = np.floor(ny0 / res) * res
         nw = int(np.ceil((nx1 - ox) / res)) + 1
         nh = int(np.ceil((ny1 - oy) / res)) + 1
-        lo = np.zeros((nh, nw), np.float32)
+        lo = np.full((nh, nw), self._q_zero, np.uint16)
         hits = np.zeros((nh, nw), np.uint16)
         free = np.zeros((nh, nw), np.uint16)
         mob = np.zeros((N_MOBILITY, nh, nw), np.uint16)
@@ -304,8 +314,7 @@ class SemanticGrid:
             scratch = cv2.erode(scratch, _KERNEL3, borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scratch[hr - r0, hc - c0] = 0
         lo = self._lo[r0:r1, c0:c1]
-        cv2.scaleAdd(scratch.astype(np.float32), -float(cfg.l_free), lo, dst=lo)  # lo - l_free inside
-        cv2.max(lo, float(cfg.l_min), dst=lo)
+        cv2.subtract(lo, self._q_free, dst=lo, mask=scratch)  # saturates at 0, which is l_min
         fr = self._free[r0:r1, c0:c1]
         if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
             np.add(fr, scratch, out=fr, casting="unsafe")
@@ -329,7 +338,7 @@ class SemanticGrid:
             ucell = cell[np.concatenate([[True], cell[1:] != cell[:-1]])]
 
             lo_flat = self._lo.reshape(-1)
-            lo_flat[ucell] = np.minimum(lo_flat[ucell] + np.float32(cfg.l_occ), np.float32(cfg.l_max))
+            lo_flat[ucell] = np.minimum(lo_flat[ucell].astype(np.int32) + self._q_occ, self._q_max)
             _bump(self._hits.reshape(-1), ucell)
             is_mob = code < N_MOBILITY
             _bump(self._mob.reshape(-1), code[is_mob] * (H * W) + cell[is_mob])
@@ -345,7 +354,7 @@ class SemanticGrid:
             raise ValueError("the grid is empty: integrate a scan first")
         return GridLayers(
             spec=spec,
-            log_odds=_frozen(self._lo.copy()),
+            log_odds=_frozen(((self._lo.astype(np.int32) - self._q_zero) * LOG_ODDS_STEP).astype(np.float32)),
             hits=_frozen(self._hits.copy()),
             free=_frozen(self._free.copy()),
             mobility=_frozen(self._mob.copy()),

@@ -8,6 +8,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from ..geometry import wrap_angle
+
 __all__ = ["OdomTrack"]
 
 
@@ -21,8 +23,7 @@ class OdomTrack:
     def __init__(self, max_gap_s: float = 0.5) -> None:
         self.max_gap_ns = int(max_gap_s * 1e9)
         self._t: list[int] = []
-        self._p: list[NDArray[np.float64]] = []
-        self._f: list[tuple[float, ...]] = []  # the same poses as plain floats (the few-stamps path)
+        self._f: list[tuple[float, float, float]] = []  # poses as plain floats (the few-stamps path needs no arrays)
         self._arrays: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None  # cache for interpolate
         self.out_of_order = 0
 
@@ -38,8 +39,8 @@ class OdomTrack:
             self.out_of_order += 1  # repeated or backwards stamps are dropped, and counted
             return
         self._t.append(int(stamp_ns))
-        self._p.append(np.asarray(pose, dtype=np.float64))
-        self._f.append(tuple(float(v) for v in self._p[-1][:3]))
+        x, y, yaw = (float(v) for v in np.asarray(pose, dtype=np.float64)[:3])
+        self._f.append((x, y, yaw))
         self._arrays = None
 
     def trim(self, before_ns: int) -> None:
@@ -47,7 +48,6 @@ class OdomTrack:
         k = bisect.bisect_left(self._t, before_ns) - 1
         if k > 0:
             del self._t[:k]
-            del self._p[:k]
             del self._f[:k]
             self._arrays = None
 
@@ -63,7 +63,7 @@ class OdomTrack:
             return self._few(t_ns)
         tt = np.atleast_1d(np.asarray(t_ns, dtype=np.int64))
         if self._arrays is None:
-            self._arrays = (np.asarray(self._t, dtype=np.int64), np.asarray(self._p))
+            self._arrays = (np.asarray(self._t, dtype=np.int64), np.asarray(self._f, dtype=np.float64))
         t, p = self._arrays
         if tt.min() < t[0] or tt.max() > t[-1]:
             return None
@@ -97,5 +97,5 @@ class OdomTrack:
             (ax, ay, ayaw), (bx, by, byaw) = f[k], f[k + 1]
             d = (byaw - ayaw + math.pi) % (2 * math.pi) - math.pi
             yaw = ayaw + w * d
-            out[i] = (ax + w * (bx - ax), ay + w * (by - ay), math.pi - (math.pi - yaw) % (2 * math.pi))
+            out[i] = (ax + w * (bx - ax), ay + w * (by - ay), wrap_angle(yaw))
         return out[0] if scalar else out

@@ -159,7 +159,8 @@ class Painter:
         return self._layout_cache
 
     def _beams(self, scan: Scan, layout: _Layout) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
-        """Base-frame points (N, 3), the valid-return mask, and the free-space range per beam."""
+        """Base-frame points (N, 3) at the free-space range of each beam, the valid-return mask,
+        and the ranges as float64."""
         r = scan.ranges.astype(np.float64)
         lo = max(scan.range_min, 1e-3)
         # comparisons with NaN are False (and numpy does not warn about them)
@@ -172,13 +173,13 @@ class Painter:
         self.stats.beams += r.size
         self.stats.below_range_min += int(np.count_nonzero(below))
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
-        return layout.origin3 + layout.dirs_base * free[:, None], hit, free
+        return layout.origin3 + layout.dirs_base * free[:, None], hit, r
 
     def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
         """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
         n = scan.ranges.size
         layout = self._layout(scan)
-        pts_base, hit, _ = self._beams(scan, layout)  # (N, 3) at each beam's own time
+        pts_base, hit, ranges = self._beams(scan, layout)  # (N, 3) at each beam's own time
         origin = self.T_base_lidar[:2, 3]
         dt_ns = int(round(scan.time_increment * 1e9)) if scan.time_increment > 0 else 0
         t_ref = scan.stamp_ns + dt_ns * (n // 2)  # the middle beam's time
@@ -214,7 +215,7 @@ class Painter:
         class_id = np.full(n, -1, np.int16)
         self.last_view = None
         if seg is not None and self.calib is not None:
-            footprint = np.abs(scan.ranges.astype(np.float64) * scan.angle_increment)
+            footprint = np.abs(ranges * scan.angle_increment)
             self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id)
         return PaintedScan(
             stamp_ns=t_ref,

@@ -200,3 +200,29 @@ def test_a_chair_rear_leg_seen_between_the_front_legs_keeps_its_label():
     is_rear = (pts[:, 0] > 2.4) & (pts[:, 0] < 2.5)
     assert (labels[is_rear] == CHAIR).all() and not hidden[is_rear].any()
     assert hidden[(pts[:, 0] > 4.9) & (labels == CHAIR)].all()  # the wall behind the chair does lose it
+
+
+def test_mask_regions_filled_on_demand_join_exactly_the_pixels_connected_components_join():
+    """The filter's "one connected region of the mask" test, asked scan after scan of one image,
+    including past the 255 regions its flood fill numbers before it labels the whole mask at once."""
+    import cv2
+
+    from semmap.paint.occlusion import _Components
+
+    rng = np.random.default_rng(7)
+    img = (rng.random((90, 120)) < 0.33).astype(np.uint16) * PERSON  # hundreds of small 8-connected pieces
+    n, ref = cv2.connectedComponents(img.astype(np.uint8), connectivity=8)
+    assert n - 1 > 300
+    rows, cols = np.nonzero(np.ones_like(img))
+    uv = np.column_stack([cols, rows])
+    labels = img[rows, cols].astype(np.intp)
+    seen = 0
+    for _ in range(12):  # one scan each, the same image (its regions are kept between scans)
+        comp = _Components(img, uv, labels)
+        a = rng.choice(np.flatnonzero(labels > 0), 200)
+        near = np.clip(a + rng.integers(-3, 4, a.size) * img.shape[1] + rng.integers(-3, 4, a.size), 0, img.size - 1)
+        b = np.where(rng.random(a.size) < 0.5, near, rng.integers(0, img.size, a.size))
+        want = ref.reshape(-1)[a] == ref.reshape(-1)[b]
+        np.testing.assert_array_equal(comp.joined(a, b), want)
+        seen += int(want.sum())
+    assert 0 < seen < 12 * 200  # both outcomes were asked about

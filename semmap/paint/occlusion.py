@@ -103,97 +103,107 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     """
     k = xy.shape[0]
     hidden = np.zeros(k, bool)
-    t = np.nonzero(targets & (labels > 0))[0]
+    on_mask = labels > 0
+    t = np.flatnonzero(targets & on_mask)
     if t.size == 0:
         return hidden
     rel = xy - eye
     dist = np.hypot(rel[:, 0], rel[:, 1])
-    o = np.nonzero(labels > 0)[0]
-    wanted = np.zeros(int(labels.max()) + 1, bool)
-    wanted[labels[t]] = True
-    o = o[wanted[labels[o]]]
-    # only occluders nearer than the farthest target, and targets behind the nearest occluder, matter
+    # occluders: points of the targets' masks, nearer than the farthest target; targets: behind the nearest
     least = min(p.line_depth_margin, p.depth_margin) if p.line_step > 0 else p.depth_margin
-    if o.size:
-        o = o[dist[o] < dist[t].max() - least]
+    lab_t = labels[t]
+    o = np.flatnonzero(on_mask & (dist < dist[t].max() - least))
+    lab_o = labels[o]
+    if (lab_t == lab_t[0]).all():  # mostly one mask
+        o = o[lab_o == lab_t[0]]
+    else:
+        wanted = np.zeros(int(labels.max()) + 1, bool)
+        wanted[lab_t] = True
+        o = o[wanted[lab_o]]
     if o.size == 0:
         return hidden
-    t = t[dist[t] > dist[o].min() + least]
+    d_o = dist[o]
+    t = t[dist[t] > d_o.min() + least]
     if t.size == 0:
         return hidden
+    d_t = dist[t]
+    lab_o = labels[o]
+    same = labels[t][:, None] == lab_o
+    if not (same & (d_o < (d_t - least)[:, None])).any():
+        return hidden
+    masks = _Components(label_image, uv, labels)
     # bearings from the camera, relative to a target's: points in front of the camera span less than a
     # half turn, so differences of these need no wrapping
     bearing = np.arctan2(rel[:, 1], rel[:, 0])
-    bearing = (bearing - bearing[t[0]] + np.pi) % (2 * np.pi) - np.pi
-    d_t = dist[t]
-    same = labels[t][:, None] == labels[o][None, :]
-    if not (same & (dist[o][None, :] < (d_t - least)[:, None])).any():
-        return hidden
-    masks = _Components(label_image, uv, labels)
-    limit = d_t - (p.depth_margin + p.depth_margin_rel * d_t)
-    nearer = same & (dist[o][None, :] < limit[:, None])
-    da = bearing[o][None, :] - bearing[t][:, None]
+    da = bearing[o] - bearing[t][:, None]
     if np.abs(da).max() >= np.pi:  # points around the camera (not in front of it): wrap
         da = (da + np.pi) % (2 * np.pi) - np.pi
-    lateral = dist[o][None, :] * np.abs(np.sin(da))  # each occluder's offset from each target's ray, m
+    ada = np.abs(da)
+    nearer = same & (d_o < (d_t - (p.depth_margin + p.depth_margin_rel * d_t))[:, None])
+    lateral = d_o * np.sin(ada)  # each occluder's offset from each target's ray, m
     # runs: neighbouring scan points of one surface; a run nearer than the points beside it is a foreground
     # object in the LiDAR's eyes (a chair's rear leg seen through the gap between the front ones), which
     # only the same-ray test may hide
-    step = np.hypot(*np.diff(xy, axis=0).T) if k > 1 else np.zeros(0)
-    brk = step > np.maximum(p.line_step, 3.0 * footprint[1:]) if p.line_step > 0 else np.ones(step.size, bool)
-    run = np.concatenate([[0], np.cumsum(brk)])
-    first = np.concatenate([[0], np.nonzero(brk)[0] + 1])
-    last = np.concatenate([np.nonzero(brk)[0], [k - 1]])
-    near_l = np.concatenate([[np.inf], dist[last[:-1]]])  # the point before each run
-    near_r = np.concatenate([dist[first[1:]], [np.inf]])  # the point after it
+    run, first, last = _runs(xy, footprint, p.line_step)
     jump = p.line_step if p.line_step > 0 else 0.06
-    foreground = (near_l > dist[first] + jump) & (near_r > dist[last] + jump)
+    d_first, d_last = dist[first], dist[last]
+    foreground = np.ones(first.size, bool)
+    foreground[1:] = d_last[:-1] > d_first[1:] + jump  # the point before each run is farther
+    foreground[:-1] &= d_first[1:] > d_last[:-1] + jump  # and the point after it
     free = ~foreground[run[t]]
     # 1. the same viewing ray: within the occluder's footprint (half a beam spacing each side), widened
-    half = 0.5 * (footprint[o] / np.maximum(dist[o], 1e-6) + p.ray_width)
-    direct = (nearer & (np.abs(da) <= half[None, :])).any(axis=1)
-    hid_t = direct.copy()
+    half = 0.5 * (footprint[o] / np.maximum(d_o, 1e-6) + p.ray_width)
+    hid_t = (nearer & (ada <= half)).any(axis=1)
+    # rules 2 and 3 ask whether the mask covers p's pixel row up to an occluder: one look at the image for both
+    rows_a: list[NDArray[np.intp]] = []
+    rows_b: list[NDArray[np.intp]] = []
     # 2. a bridged gap: the nearest nearer occluders left and right, close together, joined by the mask
+    c2 = np.zeros(0, np.intp)
     if p.max_gap > 0:
         # occluders whose lateral offset from p's ray (at their own distance) is within max_gap
         reach = nearer & (lateral <= p.max_gap)
         left = np.where(reach & (da < 0), da, -np.inf)
         right = np.where(reach & (da > 0), da, np.inf)
         i_l, i_r = left.argmax(axis=1), right.argmin(axis=1)
-        rows = np.arange(t.size)
-        cand = ~direct & free & np.isfinite(left[rows, i_l]) & np.isfinite(right[rows, i_r])
+        cand = ~hid_t & free & (left.max(axis=1) > -np.inf) & (right.min(axis=1) < np.inf)
         if cand.any():
-            c = np.nonzero(cand)[0]
+            c = np.flatnonzero(cand)
             ol, orr = o[i_l[c]], o[i_r[c]]
-            close = np.hypot(*(xy[ol] - xy[orr]).T) <= p.max_gap
-            c, ol, orr = c[close], ol[close], orr[close]
-            if c.size:
-                hid_t[c] = masks.row_joined(t[c], ol) & masks.row_joined(t[c], orr)
+            gap = xy[ol] - xy[orr]
+            close = np.hypot(gap[:, 0], gap[:, 1]) <= p.max_gap
+            c2, ol, orr = c[close], ol[close], orr[close]
+            rows_a += [t[c2], t[c2]]
+            rows_b += [ol, orr]
     # 3. the mask past the object's outermost point (an overhang above LiDAR height, or the mask's spill):
     #    a nearer occluder on one side only, a little aside, joined to p by the mask
-    if (p.edge_px > 0 or p.overhang > 0) and not hid_t.all():
-        du = np.abs(uv[o, 0][None, :] - uv[t, 0][:, None])
-        aside = nearer & ((du <= p.edge_px) | (lateral <= p.overhang))
-        du = np.where(aside, du, np.inf)
+    c3 = np.zeros(0, np.intp)
+    if p.edge_px > 0 or p.overhang > 0:
+        du = np.abs(uv[o, 0] - uv[t, 0][:, None])
+        du = np.where(nearer & ((du <= p.edge_px) | (lateral <= p.overhang)), du, np.inf)
         j = du.argmin(axis=1)
-        c = np.nonzero(~hid_t & free & np.isfinite(du[np.arange(t.size), j]))[0]
-        if c.size:
-            hid_t[c] = masks.row_joined(t[c], o[j[c]])
+        c3 = np.flatnonzero(~hid_t & free & (du.min(axis=1) < np.inf))
+        rows_a.append(t[c3])
+        rows_b.append(o[j[c3]])
+    if rows_a:
+        on_row = masks.row_joined(np.concatenate(rows_a), np.concatenate(rows_b))
+        n2 = c2.size
+        hid_t[c2] = on_row[:n2] & on_row[n2:2 * n2]  # a target rule 2 leaves visible may still fall to rule 3
+        hid_t[c3] |= on_row[2 * n2:]
     # 4. a background line across the mask: p's surface runs on, without a depth jump, to points off the
     #    mask, and a point of the mask stands in front of it (by less than the depth margin: a bed
     #    against a wall); an object's own far side does not run off its mask
     if p.line_step > 0 and not hid_t.all():
         # the nearest such point of the mask in front of each target not hidden yet
-        c = np.nonzero(~hid_t)[0]
-        front = same[c] & (dist[o][None, :] < d_t[c][:, None] - p.line_depth_margin) & (
-            lateral[c] <= p.max_gap) & (run[o][None, :] != run[t[c]][:, None])
-        score = np.where(front, np.abs(da[c]), np.inf)
+        c = np.flatnonzero(~hid_t)
+        front = same[c] & (d_o < (d_t[c] - p.line_depth_margin)[:, None]) & (lateral[c] <= p.max_gap) & (
+            run[o] != run[t[c]][:, None])
+        score = np.where(front, ada[c], np.inf)
         j = score.argmin(axis=1)
-        has = np.isfinite(score[np.arange(c.size), j])
+        has = score.min(axis=1) < np.inf
         if has.any():
             c, j = c[has], j[has]
             # ... whose own surface runs off the mask
-            off = np.zeros(int(run[-1]) + 1, bool)
+            off = np.zeros(first.size, bool)
             off[run[labels == 0]] = True
             off = _through_shadows(off, xy, dist, first, last, p.max_gap)
             line = off[run[t[c]]]
@@ -204,13 +214,68 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     return hidden
 
 
+def _runs(xy: NDArray[np.float64], footprint: NDArray[np.float64],
+          line_step: float) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Runs of neighbouring points with steps under ``line_step`` (or 3 footprints): each point's run,
+    and each run's first and last point."""
+    k = xy.shape[0]
+    run = np.zeros(k, np.intp)
+    if k > 1:
+        d = xy[1:] - xy[:-1]
+        step = np.hypot(d[:, 0], d[:, 1])
+        brk = step > np.maximum(line_step, 3.0 * footprint[1:]) if line_step > 0 else np.ones(k - 1, bool)
+        np.cumsum(brk, out=run[1:])
+        ends = np.flatnonzero(brk)
+    else:
+        ends = np.zeros(0, np.intp)
+    first = np.zeros(ends.size + 1, np.intp)
+    first[1:] = ends + 1
+    last = np.full(ends.size + 1, k - 1, np.intp)
+    last[:-1] = ends
+    return run, first, last
+
+
 _ROW_STEPS = np.linspace(0.0, 1.0, 24)[None, :]  # where row_joined samples the row between two columns
+
+
+class _Regions:
+    """The 8-connected regions of one mask, flood-filled from the pixels asked about (cost: their area).
+
+    Each region gets a number the first time one of its pixels is asked about; past 255 regions
+    (the numbers are bytes) every region of the mask is labelled at once instead.
+    """
+
+    _FLAGS = 8 | cv2.FLOODFILL_MASK_ONLY | cv2.FLOODFILL_FIXED_RANGE
+
+    def __init__(self, mask: NDArray[np.uint8]) -> None:
+        self.mask = mask  # 1 on the mask, 0 off it
+        h, w = mask.shape
+        self.filled = np.zeros((h + 2, w + 2), np.uint8)  # floodFill's mask: region numbers, a pixel of border
+        self.n = 0
+        self.all: NDArray[np.int32] | None = None
+
+    def at(self, row: NDArray[np.intp], col: NDArray[np.intp], fill: bool = True) -> NDArray[np.integer]:
+        """The region under each pixel (0: off the mask); ``fill``: number the regions not seen yet."""
+        if self.all is not None:
+            return self.all[row, col]
+        ids = self.filled[row + 1, col + 1]
+        if fill:
+            for i in np.flatnonzero((ids == 0) & (self.mask[row, col] != 0)):
+                r, c = int(row[i]), int(col[i])
+                if self.filled[r + 1, c + 1] == 0:  # not filled by an earlier pixel of this call
+                    if self.n == 255:
+                        self.all = cv2.connectedComponents(self.mask, connectivity=8)[1]
+                        return self.all[row, col]
+                    self.n += 1
+                    cv2.floodFill(self.mask, self.filled, (c, r), 1, 0, 0, self._FLAGS | (self.n << 8))
+                ids[i] = self.filled[r + 1, c + 1]
+        return ids
 
 
 class _Components:
     """Whether two points' pixels lie on one connected region of their mask (computed per label, lazily)."""
 
-    _last: tuple[weakref.ReferenceType, dict[int, tuple[int, int, NDArray[np.int32]]]] | None = None
+    _last: tuple[weakref.ReferenceType, dict[int, _Regions]] | None = None
 
     def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
         self.image = label_image
@@ -224,21 +289,18 @@ class _Components:
         # a camera frame is painted with several scans: keep its regions while the same image comes back
         last = _Components._last
         if last is not None and last[0]() is label_image:
-            self._cc = last[1]
+            self._regions = last[1]
         else:
-            self._cc = {}
-            _Components._last = (weakref.ref(label_image), self._cc)
+            self._regions = {}
+            _Components._last = (weakref.ref(label_image), self._regions)
 
-    def _of(self, value: int) -> tuple[int, int, NDArray[np.int32]]:
-        """Connected regions of the mask ``value`` within its bounding box: (column, row, regions)."""
-        cc = self._cc.get(value)
-        if cc is None:
-            mask = (self.image == value).view(np.uint8)
-            x, y, w, h = cv2.boundingRect(mask)  # the regions of a small mask cost a small image
-            _, regions = cv2.connectedComponents(mask[y:y + h, x:x + w], connectivity=8)
-            cc = (x, y, regions)
-            self._cc[value] = cc
-        return cc
+    def _of(self, value: int) -> _Regions:
+        """The regions of the mask ``value``."""
+        regions = self._regions.get(value)
+        if regions is None:
+            regions = _Regions((self.image == value).view(np.uint8))
+            self._regions[value] = regions
+        return regions
 
     def row_joined(self, a: NDArray[np.intp], b: NDArray[np.intp], min_share: float = 0.8) -> NDArray[np.bool_]:
         """Whether the mask covers ``min_share`` of a's pixel row between a's column and b's."""
@@ -249,22 +311,15 @@ class _Components:
 
     def joined(self, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Whether a's and b's pixels lie on one connected region of a's mask."""
-        out = np.zeros(a.size, bool)
         la = self.labels[a]
-        for value in (la[:1] if (la == la[0]).all() else np.unique(la)):  # mostly one label
+        if (la == la[0]).all():  # mostly one label
+            regions = self._of(int(la[0]))
+            ra = regions.at(self.row[a], self.col[a])
+            return (ra > 0) & (ra == regions.at(self.row[b], self.col[b], fill=False))
+        out = np.zeros(a.size, bool)
+        for value in np.unique(la):
             m = la == value
-            x, y, cc = self._of(int(value))
-            ra = self._region(cc, x, y, a[m])
-            out[m] = (ra > 0) & (ra == self._region(cc, x, y, b[m]))
-        return out
-
-    def _region(self, cc: NDArray[np.int32], x: int, y: int, i: NDArray[np.intp]) -> NDArray[np.int32]:
-        """The region under points ``i`` (0: off the mask) in regions ``cc`` of the box at (x, y)."""
-        r, c = self.row[i] - y, self.col[i] - x
-        h, w = cc.shape
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        out = np.zeros(i.size, np.int32)
-        out[inside] = cc[r[inside], c[inside]]
+            out[m] = self.joined(a[m], b[m])
         return out
 
 
@@ -286,6 +341,8 @@ def _through_shadows(off: NDArray[np.bool_], xy: NDArray[np.float64], dist: NDAr
         return (run_max[r - 1] < np.minimum(dist[a], dist[b])) & (np.hypot(*(xy[a] - xy[b]).T) <= max_gap)
 
     ok = bridged(first[r], last[r - 2])  # ok[i]: runs i and i + 2 are one surface behind run i + 1
+    if not ok.any():
+        return off
     out = off.copy()
     for _ in range(4):
         new = out.copy()

@@ -272,8 +272,14 @@ class Painter:
             uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
                                         min_depth=self.paint_cfg.min_depth)
         ok = inside & front
-        # the occlusion filter also looks at points above or below the image (their label: the image's edge)
-        seen = (ahead & np.isfinite(uv).all(axis=1)) if self._occlusion is not None else ok
+        # the occlusion filter also looks at points above or below the image (their label: the image's edge);
+        # without distortion, every point ahead has finite pixel coordinates
+        if self._occlusion is None:
+            seen = ok
+        elif self._pinhole_no_distortion:
+            seen = ahead
+        else:
+            seen = ahead & np.isfinite(uv).all(axis=1)
         if not ok.any():
             return
         px = np.rint(np.where(seen[:, None], uv, 0.0)).astype(np.intp)

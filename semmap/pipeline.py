@@ -31,7 +31,7 @@ from .classes import load_class_table
 from .config import BuildConfig, merge_overrides
 from .errors import BagError
 from .io.atomic import atomic_dir
-from .io.bag import ReadStats, iter_messages, message_count
+from .io.bag import ReadStats, iter_messages, message_count, open_bag
 from .io.messages import odometry_from_msg, scan_from_msg
 from .io.tour import Tour, load_build_config, open_tour
 from .paint.motion import OdomTrack
@@ -264,18 +264,19 @@ def build(
                 part.wait_ready()
         topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
         stats = ReadStats()
-        n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan)
-        t_loop = time.perf_counter()
-        cpu_loop = time.process_time()
-        for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats):
-            if topic == tinfo.topics.scan:
-                pipe.on_scan(t_bag, msg)
-                if progress is not None and stats.read.get(topic, 0) % 50 == 0:
-                    progress(stats.read.get(topic, 0), n_scan_msgs)
-            else:
-                pipe.on_odometry(msg)
-            pipe.process_ready(t_bag)
-        pipe.flush()
+        with open_bag(tinfo.bag) as reader:  # opened once: counting and streaming share its index
+            n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan, reader)
+            t_loop = time.perf_counter()
+            cpu_loop = time.process_time()
+            for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats, reader):
+                if topic == tinfo.topics.scan:
+                    pipe.on_scan(t_bag, msg)
+                    if progress is not None and stats.read.get(topic, 0) % 50 == 0:
+                        progress(stats.read.get(topic, 0), n_scan_msgs)
+                else:
+                    pipe.on_odometry(msg)
+                pipe.process_ready(t_bag)
+            pipe.flush()
         t_wait = time.perf_counter()
         pipe.result = mapper.finish()
         pipe.trace.poses = pipe.result.poses

@@ -517,10 +517,15 @@ def topic_types(path: str | Path) -> dict[str, str]:
         return out
 
 
-def message_count(path: str | Path, topic: str) -> int:
-    """Messages on ``topic`` as the bag's index counts them (0 if the storage does not say)."""
-    with open_bag(path) as reader:
+def message_count(path: str | Path, topic: str, reader: Any = None) -> int:
+    """Messages on ``topic`` as the bag's index counts them (0 if the storage does not say).
+
+    ``reader``: the bag already opened with :func:`open_bag` (else it is opened here).
+    """
+    if reader is not None:
         return sum(max(c.msgcount, 0) for c in reader.connections if c.topic == topic)
+    with open_bag(path) as opened:
+        return message_count(path, topic, opened)
 
 
 @dataclass
@@ -586,31 +591,39 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
     return records()
 
 
-def iter_messages(path: str | Path, topics: Sequence[str],
-                  stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+def iter_messages(path: str | Path, topics: Sequence[str], stats: ReadStats | None = None,
+                  reader: Any = None) -> Iterator[tuple[str, int, Any]]:
     """Stream ``(topic, bag_time_ns, message)`` for the given topics in bag-time order.
 
     Messages are deserialised one at a time, so memory does not grow with the bag.
     A message that fails to deserialise is skipped and counted in ``stats.skipped``.
+    ``reader``: the bag already opened with :func:`open_bag` (else it is opened here).
     """
-    from rosbags.highlevel import AnyReaderError
-
     stats = stats if stats is not None else ReadStats()
     p = resolve_bag_path(path)
-    with open_bag(p) as reader:
-        conns = [c for c in reader.connections if c.topic in set(topics)]
-        try:
-            records = _ros1_records(reader, conns) if conns else None
-            for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
-                try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except (AnyReaderError, ValueError, IndexError, KeyError) as exc:
-                    stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
-                    log.debug("%s: skipped a message on %s (%s)", p, conn.topic, exc)
-                    continue
-                stats.read[conn.topic] = stats.read.get(conn.topic, 0) + 1
-                yield conn.topic, t_ns, msg
-        except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
-            if isinstance(exc, AnyReaderError | OSError | EOFError) or type(exc).__module__.startswith("rosbags"):
-                raise BagError(f"{p}: bag is unreadable or truncated ({exc})") from None
-            raise
+    if reader is not None:
+        yield from _stream(reader, p, topics, stats)
+        return
+    with open_bag(p) as opened:
+        yield from _stream(opened, p, topics, stats)
+
+
+def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> Iterator[tuple[str, int, Any]]:
+    from rosbags.highlevel import AnyReaderError
+
+    conns = [c for c in reader.connections if c.topic in set(topics)]
+    try:
+        records = _ros1_records(reader, conns) if conns else None
+        for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except (AnyReaderError, ValueError, IndexError, KeyError) as exc:
+                stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
+                log.debug("%s: skipped a message on %s (%s)", p, conn.topic, exc)
+                continue
+            stats.read[conn.topic] = stats.read.get(conn.topic, 0) + 1
+            yield conn.topic, t_ns, msg
+    except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
+        if isinstance(exc, AnyReaderError | OSError | EOFError) or type(exc).__module__.startswith("rosbags"):
+            raise BagError(f"{p}: bag is unreadable or truncated ({exc})") from None
+        raise

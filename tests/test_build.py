@@ -74,11 +74,12 @@ def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map
     a, b = np.load(demo_map.out / "grid.npz"), np.load(single.out / "grid.npz")
     assert np.array_equal(a["log_odds"], b["log_odds"]) and np.array_equal(a["mobility"], b["mobility"])
     assert read_tum(demo_map.out / "trajectory.tum")[1] == pytest.approx(read_tum(single.out / "trajectory.tum")[1])
-    # CPU time per process: every worker did its share; one process does it all itself
+    # CPU time per process: every worker did its share (raw label images are read in the main process,
+    # with no frame worker); one process does it all itself
     cpu = json.loads((demo_map.out / "summary.json").read_text())["cpu_s"]
-    assert set(cpu) == {"main", "frames", "registration", "fusion", "total", "per_scan_ms"}
-    assert min(cpu["frames"], cpu["registration"], cpu["fusion"]) > 0
-    assert cpu["total"] == pytest.approx(cpu["main"] + cpu["frames"] + cpu["registration"] + cpu["fusion"], abs=0.01)
+    assert set(cpu) == {"main", "registration", "fusion", "total", "per_scan_ms"}
+    assert min(cpu["registration"], cpu["fusion"]) > 0
+    assert cpu["total"] == pytest.approx(cpu["main"] + cpu["registration"] + cpu["fusion"], abs=0.01)
     assert cpu["per_scan_ms"] == pytest.approx(1000 * cpu["total"] / 418, rel=0.01)
     assert set(single.summary["cpu_s"]) == {"main", "total", "per_scan_ms"}
 

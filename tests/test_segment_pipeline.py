@@ -144,6 +144,7 @@ def test_build_runs_a_model_backend_in_its_worker_and_a_rebuild_uses_the_cache(r
     entries = sorted(cache.glob("onnx-*/*.npz"))
     assert first.summary["counts"]["frames"] == len(entries) == 40
     assert first.summary["painting"]["backend"] == "onnx"
+    assert first.summary["cpu_s"]["frames"] > 0  # the model ran in the frame worker
     assert set(first.summary["painting"]["hits_by_class"]) <= {"person", "chair"}
     mtimes = [p.stat().st_mtime_ns for p in entries]
     second = build(ros1_tour.out, tmp_path / "m2", overrides={"segmentation": seg})

@@ -182,6 +182,9 @@ def yaw_to_quaternion(yaw: ArrayLike) -> NDArray[np.float64]:
 
 def quaternion_to_yaw(q_xyzw: ArrayLike) -> NDArray[np.float64] | float:
     """Quaternion(s) (x, y, z, w) → yaw about +z (the heading of the rotated x axis)."""
+    if isinstance(q_xyzw, list | tuple) and len(q_xyzw) == 4 and all(isinstance(v, float | int) for v in q_xyzw):
+        x, y, z, w = (float(v) for v in q_xyzw)  # one quaternion (an odometry message): no arrays
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     q = np.asarray(q_xyzw, dtype=np.float64)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

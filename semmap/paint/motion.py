@@ -39,7 +39,7 @@ class OdomTrack:
             self.out_of_order += 1  # repeated or backwards stamps are dropped, and counted
             return
         self._t.append(int(stamp_ns))
-        x, y, yaw = (float(v) for v in np.asarray(pose, dtype=np.float64)[:3])
+        x, y, yaw = np.asarray(pose, dtype=np.float64)[:3].tolist()
         self._f.append((x, y, yaw))
         self._arrays = None
 

@@ -21,6 +21,7 @@ stationary sensor) and scores how many hand-labelled leg positions stay occupied
 
     python tools/bench_build.py                     # ward + office, 3 modes, leg_tracker
     python tools/bench_build.py --scenarios demo --modes fused
+    python tools/bench_build.py --modes fused --speed-runs 8 --baseline /tmp/base   # A/B against another tree
 """
 
 from __future__ import annotations
@@ -48,9 +49,11 @@ print(json.dumps({"summary_path": str(r.out / "summary.json"), "elapsed_s": r.el
 """
 
 
-def run_build(tour: Path, out: Path, overrides: dict, config: str = "-") -> dict:
+def run_build(tour: Path, out: Path, overrides: dict, config: str = "-", source: Path | None = None) -> dict:
+    """Build in a child process; ``source``: the semmap source tree to import (default: this one)."""
+    env = None if source is None else dict(os.environ, PYTHONPATH=str(source))
     res = subprocess.run([sys.executable, "-c", CHILD, str(tour), str(out), config, json.dumps(overrides)],
-                         capture_output=True, text=True)
+                         capture_output=True, text=True, env=env, cwd=source)
     if res.returncode != 0:
         raise RuntimeError(f"build of {tour} failed:\n{res.stderr[-3000:]}")
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -132,8 +135,13 @@ def main() -> int:
     ap.add_argument("--speed-runs", type=int, default=3,
                     help="extra fused builds per scenario for the throughput figure (median; timings vary "
                          "from run to run on a shared 2-core machine)")
+    ap.add_argument("--baseline", type=Path,
+                    help="another semmap source tree (e.g. `git worktree add /tmp/base REV`): its builds alternate "
+                         "with this tree's in the throughput runs, so the host's slow spells hit both alike")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
+    if args.baseline is not None and not (args.baseline / "semmap" / "__init__.py").is_file():
+        ap.error(f"--baseline {args.baseline}: not a semmap source tree (no semmap/__init__.py)")
 
     from semmap.sim.tour import simulate
 
@@ -160,6 +168,7 @@ def main() -> int:
         speed = []
         for sc in args.scenarios:
             runs = []
+            base: list[tuple[float, float]] = []  # (scans/s, CPU ms per scan) of the baseline's builds
             for k in range(args.speed_runs):
                 out = Path(tmp) / f"{sc}-speed{k}"
                 ref_ms = host_reference_ms(3)  # the host's own speed just before this build
@@ -169,6 +178,11 @@ def main() -> int:
                 runs.append((summary["throughput"]["scans_per_s"], summary["throughput"]["real_time_factor"],
                              rss, summary["counts"]["scans"], summary["tour"]["duration_s"],
                              summary["cpu_s"]["per_scan_ms"], ref_ms))
+                if args.baseline is not None:  # right after, on the same host state
+                    res = run_build(args.tours / sc, Path(tmp) / f"{sc}-base{k}", {"registration": {"mode": "fused"}},
+                                    source=args.baseline.resolve())
+                    bsum = json.loads(Path(res["summary_path"]).read_text())
+                    base.append((bsum["throughput"]["scans_per_s"], bsum.get("cpu_s", {}).get("per_scan_ms", 0.0)))
             if runs:
                 sps = sorted(r[0] for r in runs)
                 speed.append({"scenario": sc, "runs": len(runs), "scans_per_s_median": sps[len(sps) // 2],
@@ -178,6 +192,13 @@ def main() -> int:
                               "tour_s": runs[0][4],
                               "cpu_ms_per_scan_median": sorted(r[5] for r in runs)[len(runs) // 2],
                               "host_reference_ms_median": sorted(r[6] for r in runs)[len(runs) // 2]})
+                if base:
+                    ratios = sorted(r[0] / b[0] for r, b in zip(runs, base))
+                    speed[-1]["baseline"] = {
+                        "scans_per_s_median": sorted(b[0] for b in base)[len(base) // 2],
+                        "cpu_ms_per_scan_median": sorted(b[1] for b in base)[len(base) // 2],
+                        "speed_ratio_median": ratios[len(ratios) // 2], "speed_ratio_min": ratios[0],
+                        "speed_ratio_max": ratios[-1]}
         legs = []
         leg_dir = args.data / "leg_tracker"
         if leg_dir.is_dir():
@@ -212,6 +233,18 @@ def main() -> int:
                   f"{r['scans_per_s_min']:.0f}-{r['scans_per_s_max']:.0f} | {r['real_time_factor_median']:.0f}x | "
                   f"{r['cpu_ms_per_scan_median']:.2f} | {r['host_reference_ms_median']:.1f} | "
                   f"{r['peak_rss_mb']:.0f} |")
+    if any("baseline" in r for r in speed):
+        print(f"\nAgainst the baseline {args.baseline} (its builds alternate with this tree's; ratio: this tree's "
+              "scans/s over the baseline's in each back-to-back pair):\n")
+        print("| scenario | scans/s (median) | baseline scans/s (median) | speed ratio, median (range) | "
+              "CPU ms per scan | baseline CPU ms per scan |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for r in speed:
+            b = r.get("baseline")
+            if b:
+                print(f"| {r['scenario']} | {r['scans_per_s_median']:.0f} | {b['scans_per_s_median']:.0f} | "
+                      f"{b['speed_ratio_median']:.2f} ({b['speed_ratio_min']:.2f}-{b['speed_ratio_max']:.2f}) | "
+                      f"{r['cpu_ms_per_scan_median']:.2f} | {b['cpu_ms_per_scan_median']:.2f} |")
     if legs:
         print("\nReal leg_tracker bags (LiDAR only, stationary sensor, KISS-ICP, "
               "`paint.below_range_min: no_return`):\n")

@@ -3,7 +3,7 @@
 Data flows one way, one scan at a time, so memory does not grow with the tour:
 
     bag ─► scans + odometry ───────────────┐   (this process)
-    bag ─► camera frames ─► segmenter ─────┤   (frame worker process)
+    bag ─► camera frames ─► segmenter ─────┤   (frame worker process; raw label images: this process)
                                            ▼
            painter (deskew, sync to the image, project, label → mobility)   (this process)
                                            ▼

@@ -112,15 +112,31 @@ def _single_threaded() -> None:
 _COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
 
 
-def _decoded_segmentations(bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
-                           counts: dict[str, int]) -> Iterator[Segmentation]:
-    from .io.bag import iter_messages
-    from .io.messages import compressed_image_from_msg, image_from_msg
-    from .segment.base import create_segmenter
+class _FrameSource:
+    """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
+    here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
 
-    segmenter = create_segmenter(seg_cfg)
-    try:
-        for _, _, msg in iter_messages(bag, [topic]):
+    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+                 counts: dict[str, int]) -> None:
+        from .io.bag import iter_messages, open_bag
+        from .segment.base import create_segmenter
+
+        self._stack = contextlib.ExitStack()
+        segmenter = create_segmenter(seg_cfg)
+        self._stack.callback(segmenter.close)
+        try:
+            reader = self._stack.enter_context(open_bag(bag))
+        except BaseException:
+            self._stack.close()
+            raise
+        self._it = self._frames(iter_messages(bag, [topic], reader=reader), topic, msgtype, segmenter, counts)
+
+    @staticmethod
+    def _frames(messages: Iterator[tuple[str, int, Any]], topic: str, msgtype: str, segmenter: Any,
+                counts: dict[str, int]) -> Iterator[Segmentation]:
+        from .io.messages import compressed_image_from_msg, image_from_msg
+
+        for _, _, msg in messages:
             t0 = time.perf_counter()
             try:
                 img = compressed_image_from_msg(msg, topic) if msgtype == _COMPRESSED_T else image_from_msg(msg, topic)
@@ -132,8 +148,13 @@ def _decoded_segmentations(bag: Path, topic: str, msgtype: str, seg_cfg: Segment
             counts["frames"] += 1
             counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
             yield seg
-    finally:
-        segmenter.close()
+
+    def __iter__(self) -> Iterator[Segmentation]:
+        return self._it
+
+    def close(self) -> None:
+        self._it.close()
+        self._stack.close()
 
 
 class InProcessFrames:
@@ -141,7 +162,8 @@ class InProcessFrames:
 
     def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
         self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._it = _decoded_segmentations(bag, topic, msgtype, seg_cfg, self.counts)
+        self._source = _FrameSource(bag, topic, msgtype, seg_cfg, self.counts)
+        self._it = iter(self._source)
 
     def next(self) -> Segmentation | None:
         return next(self._it, None)
@@ -153,7 +175,7 @@ class InProcessFrames:
         pass
 
     def close(self) -> None:
-        self._it.close()
+        self._source.close()
 
 
 def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any], out: Any,
@@ -163,6 +185,7 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
     counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
     parent = _Parent()
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
+    frames: _FrameSource | None = None
     _single_threaded()
     try:
         slots = None
@@ -170,7 +193,7 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
         cfg = SegmentationConfig.model_validate(seg_cfg)
-        frames = _decoded_segmentations(Path(bag), topic, msgtype, cfg, counts)
+        frames = _FrameSource(Path(bag), topic, msgtype, cfg, counts)
         parent.put(out, ("ready",))
         cpu0 = time.process_time()
         for seg in frames:
@@ -189,6 +212,8 @@ def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, An
     except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
         out.put(("error", type(exc).__name__, f"frame worker failed: {type(exc).__name__}: {exc}"))
     finally:
+        if frames is not None:
+            frames.close()
         if shm is not None:
             shm.close()
 

@@ -165,7 +165,10 @@ class _Pipeline:
 
     def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:
         """Paint a scan paired with its segmentation and hand it to the mapper."""
-        painted = self.painter.paint(scan, self.odom, seg)
+        try:
+            painted = self.painter.paint(scan, self.odom, seg)
+        except BagError as exc:  # a label image that does not fit the calibration
+            raise BagError(f"{self.tour.bag}: {self.tour.topics.frames}: {exc}") from None
         odom_pose = self.painter.last_odom_pose
         t1 = time.perf_counter()
         self.mapper.push(painted, odom_pose)

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import yaml
 
 from semmap.cli.main import main
 from semmap.errors import BagError, ConfigError
@@ -102,6 +103,20 @@ def test_missing_calibration_is_a_clear_error(demo_tour, tmp_path):
     with pytest.raises(ConfigError, match="no calibration.*--calibration"):
         build(bare / "demo.bag", tmp_path / "map")
     assert not (tmp_path / "map").exists()
+
+
+def test_calibration_for_another_image_size_is_a_one_line_error(capsys, demo_tour, tmp_path):
+    from semmap.io.yamlio import read_yaml
+
+    calib = read_yaml(demo_tour.out / "calibration.yaml")
+    calib["intrinsics"]["width"], calib["intrinsics"]["height"] = 1280, 960  # the camera's full resolution
+    path = tmp_path / "calib_1280.yaml"
+    path.write_text(yaml.safe_dump(calib))
+    code = main(["build", str(demo_tour.out), "--out", str(tmp_path / "m"), "--calibration", str(path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 3 and len(err.splitlines()) == 1
+    assert "/camera/labels" in err and "640x480" in err and "1280x960" in err and "Traceback" not in err
+    assert not (tmp_path / "m").exists()
 
 
 def test_missing_topic_is_a_clear_error(demo_tour, tmp_path):

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from ..classes import ClassTable
 from ..config import PaintConfig, SyncConfig
+from ..errors import BagError
 from ..geometry import project_points, se2_apply, se2_between, se2_inverse, se2_to_se3, se3_inverse
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
@@ -235,8 +236,9 @@ class Painter:
         assert self.calib is not None
         intr = self.calib.intrinsics
         if seg.label.shape != (intr.height, intr.width):
-            raise ValueError(f"label image is {seg.label.shape[1]}x{seg.label.shape[0]}, calibration says "
-                             f"{intr.width}x{intr.height}")
+            raise BagError(f"a label image is {seg.label.shape[1]}x{seg.label.shape[0]} px, the camera calibration "
+                           f"says {intr.width}x{intr.height}: wrong calibration file, or images resized after "
+                           f"calibrating")
         # the camera sees the points where they were at the image's capture time: T_cam_base at the image
         # time, composed with the reference-time base pose seen from the image time; the occlusion filter
         # works in the reference-time base frame, with the camera centre moved into it (a rigid motion

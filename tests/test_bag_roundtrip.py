@@ -114,17 +114,18 @@ def _via_rosbags(bag, topics):
 
 
 def test_streamed_messages_are_rosbags_messages(short_tour, monkeypatch):
-    """semmap reads uncompressed ROS1 messages record by record (not whole chunks): same messages, same order."""
+    """semmap reads uncompressed ROS1 and MCAP messages record by record (not whole chunks): same messages,
+    same order."""
     import semmap.io.bag as bag_module
-    from semmap.io.bag import _ros1_records, iter_messages
+    from semmap.io.bag import _mcap_records, _ros1_records, iter_messages
 
     theirs = _via_rosbags(short_tour.bag, READ_TOPICS)
     monkeypatch.setattr(bag_module, "_SPARSE_MIN_BYTES", 0)  # record by record even where chunks would do
     monkeypatch.setattr(bag_module, "_RELEASE_BYTES", 4096)  # hand mapped pages back after every few messages
     with open_bag(short_tour.bag) as reader:
         conns = [c for c in reader.connections if c.topic in READ_TOPICS]
-        records = _ros1_records(reader, conns)
-        assert (records is not None) == (short_tour.bag.suffix == ".bag")
+        records = _ros1_records(reader, conns) or _mcap_records(reader, conns)
+        assert (records is not None) == (short_tour.format in ("ros1", "mcap"))  # sqlite3: rosbags reads rows
         if records is not None:
             kept = list(records)  # views of the mapped bag, held while later pages are handed back
             assert any(isinstance(raw, memoryview) for _, _, raw in kept)

@@ -545,6 +545,40 @@ _SPARSE_MIN_BYTES = 64 * 1024
 _RELEASE_BYTES = 16 * 1024 * 1024
 
 
+class _Bytes:
+    """Reads a bag file's records: from the file mapped into memory where it can be (a message's bytes
+    are then a read-only view of the file, not a copy), else through its file object. Mapped pages
+    read past are handed back every ``_RELEASE_BYTES``, so the process does not hold the whole bag
+    resident; a message still in use reads them again from the page cache."""
+
+    def __init__(self, bio: Any) -> None:
+        self.bio = bio
+        try:
+            self.mapped: Any = mmap.mmap(bio.fileno(), 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+            self.mapped = None
+        self.src = bio if self.mapped is None else self.mapped  # seek, tell and read work on both
+        self._view = None if self.mapped is None else memoryview(self.mapped)
+        self._released = 0  # mapped pages below this were handed back
+
+    def take(self, size: int, error: type[Exception]) -> bytes | memoryview:
+        """The next ``size`` bytes at the current position (the position moves past them)."""
+        if self._view is None:
+            data = self.src.read(size)
+            if len(data) != size:
+                raise error(f"Got only {len(data)} of requested {size} bytes.")
+            return data
+        start = self.src.tell()
+        if start + size > len(self._view):
+            raise error(f"Got only {len(self._view) - start} of requested {size} bytes.")
+        self.src.seek(size, os.SEEK_CUR)
+        if start - self._released > _RELEASE_BYTES and hasattr(self.mapped, "madvise"):
+            end = start - start % mmap.PAGESIZE
+            self.mapped.madvise(mmap.MADV_DONTNEED, self._released, end - self._released)
+            self._released = end
+        return self._view[start:start + size]
+
+
 def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes | memoryview]] | None:
     """The messages of ``conns`` in an uncompressed ROS1 bag, each read on its own; None for other bags.
 
@@ -577,20 +611,14 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
             return None
         connmap = {c.id: c for c in bag.connections}
         bio = bag.bio
-        read_header, read_uint32, read_bytes = r1.Header.read, r1.read_uint32, r1.read_bytes
+        read_header, read_uint32 = r1.Header.read, r1.read_uint32
         connection_op, message_op = int(r1.RecordType.CONNECTION), int(r1.RecordType.MSGDATA)
     except (ImportError, AttributeError, KeyError, TypeError):
         return None
 
-    try:  # the file mapped into memory: each message's bytes are a view of it, not a copy
-        mapped: Any = mmap.mmap(bio.fileno(), 0, access=mmap.ACCESS_READ)
-    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
-        mapped = None
-
     def records() -> Iterator[tuple[Any, int, bytes | memoryview]]:
-        src = bio if mapped is None else mapped
-        view = None if mapped is None else memoryview(mapped)
-        released = 0  # mapped pages below this were handed back
+        data = _Bytes(bio)
+        src = data.src
         for entry in heapq.merge(*indexes):  # time order, as rosbags merges them
             src.seek(chunks[entry.chunk_pos].datapos + entry.offset)
             while True:
@@ -601,22 +629,84 @@ def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int,
                 src.seek(read_uint32(src), os.SEEK_CUR)  # a connection record before the message
             if op != message_op:
                 raise r1.ReaderError(f"expected message data at chunk {entry.chunk_pos} offset {entry.offset}")
-            size = read_uint32(src)
-            if view is None:
-                data: bytes | memoryview = read_bytes(src, size)
-            else:
-                start = src.tell()
-                if start + size > len(view):
-                    raise r1.ReaderError(f"Got only {len(view) - start} of requested {size} bytes.")
-                data = view[start:start + size]
-                src.seek(size, os.SEEK_CUR)
-                if start - released > _RELEASE_BYTES and hasattr(mapped, "madvise"):
-                    # pages read earlier leave this process (it would otherwise hold the whole bag
-                    # resident); a message still in use reads them again from the page cache
-                    end = start - start % mmap.PAGESIZE
-                    mapped.madvise(mmap.MADV_DONTNEED, released, end - released)
-                    released = end
-            yield connmap[header.get_uint32("conn")], entry.time, data
+            yield connmap[header.get_uint32("conn")], entry.time, data.take(read_uint32(src), r1.ReaderError)
+
+    return records()
+
+
+def _mcap_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes | memoryview]] | None:
+    """The messages of ``conns`` in a ROS2 MCAP bag with uncompressed chunks, each read on its own;
+    None for other bags.
+
+    As for ROS1 (:func:`_ros1_records`): rosbags reads every chunk that holds a wanted message
+    whole, but each chunk's message index gives the offset of every message of a channel in it,
+    so only the wanted records are read (views of the mapped file). The order is rosbags': by log
+    time, then by chunk, then as stored. None (rosbags' own path) for compressed chunks or messages,
+    several storage files, files without chunk and message indexes, chunks that hold mostly wanted
+    bytes, and a rosbags that lays out its parsed index differently.
+    """
+    try:
+        from rosbags.rosbag2 import storage_mcap as m2
+
+        if not getattr(reader, "is2", False) or len(reader.readers) != 1:
+            return None
+        bag = reader.readers[0]
+        storage = bag.storage
+        storages = getattr(storage, "storages", [storage])
+        if len(storages) != 1 or not isinstance(storages[0], m2.McapReader) or \
+                getattr(bag, "compression_mode", None) == "message":
+            return None
+        mcap = storages[0]
+        # the bag's connections and the file's channels, matched as rosbags matches them
+        wanted: dict[int, Any] = {}
+        for x in mcap.connections:
+            for y in conns:
+                if y.topic == x.topic and y.msgtype == x.msgtype and (not x.digest or not y.digest
+                                                                        or y.digest == x.digest):
+                    wanted[x.id] = y
+                    break
+        chunks = [c for c in mcap.chunks if any(c.channel_count.get(cid, 0) for cid in wanted)]
+        if not chunks or any(c.compression or any(c.channel_count.get(cid, 0) and cid not in c.message_index_offsets
+                                                  for cid in wanted) for c in chunks):
+            return None
+        n_wanted = sum(c.channel_count.get(cid, 0) for c in chunks for cid in wanted)
+        if sum(c.uncompressed_size for c in chunks) < _SPARSE_MIN_BYTES * n_wanted:
+            return None
+        bio = mcap.bio
+        error = m2.ReaderError
+    except (ImportError, AttributeError, KeyError, TypeError):
+        return None
+
+    def chunk_entries(data: _Bytes, chunk: Any) -> Iterator[tuple[int, int, int, int]]:
+        """(log time, chunk offset, record offset, channel) of the chunk's wanted messages, in order."""
+        yield chunk.message_start_time, chunk.chunk_start_offset, -1, -1  # the index is read when needed
+        entries: list[tuple[int, int, int, int]] = []
+        for cid in wanted:
+            if not chunk.channel_count.get(cid, 0):
+                continue
+            data.src.seek(chunk.message_index_offsets[cid])
+            head = data.src.read(15)  # op, record length, channel id, byte length of the entries
+            if len(head) != 15 or head[0] != 0x07:
+                raise error(f"no message index at offset {chunk.message_index_offsets[cid]}")
+            n = int.from_bytes(head[11:15], "little")
+            pairs = np.frombuffer(bytes(data.take(n, error)), dtype="<u8").reshape(-1, 2)
+            entries.extend((int(t), chunk.chunk_start_offset, int(off), cid) for t, off in pairs.tolist())
+        entries.sort()
+        yield from entries
+
+    def records() -> Iterator[tuple[Any, int, bytes | memoryview]]:
+        data = _Bytes(bio)
+        start_of = {c.chunk_start_offset: c.chunk_start_offset + 9 + 40 + len(c.compression) for c in chunks}
+        for log_time, chunk_at, offset, cid in heapq.merge(*(chunk_entries(data, c) for c in chunks)):
+            if offset < 0:
+                continue
+            data.src.seek(start_of[chunk_at] + offset)
+            head = data.src.read(9)  # op, record length
+            if len(head) != 9 or head[0] != 0x05:
+                raise error(f"no message record at chunk {chunk_at} offset {offset}")
+            size = int.from_bytes(head[1:9], "little")
+            data.src.seek(22, os.SEEK_CUR)  # channel, sequence, log and publish time
+            yield wanted[cid], log_time, data.take(size - 22, error)
 
     return records()
 
@@ -643,7 +733,7 @@ def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> It
 
     conns = [c for c in reader.connections if c.topic in set(topics)]
     try:
-        records = _ros1_records(reader, conns) if conns else None
+        records = (_ros1_records(reader, conns) or _mcap_records(reader, conns)) if conns else None
         for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
             try:
                 msg = reader.deserialize(raw, conn.msgtype)

@@ -296,7 +296,8 @@ class RegistrationConfig(_Model):
                                                          "(0: keep KISS-ICP's down-sampling as is)")
     min_range: float = Field(0.1, ge=0, description="points closer than this are not registered, m")
     max_points_per_voxel: int = Field(5, gt=0, description="points kept per map voxel (KISS-ICP: 20 for 3D; a 2D "
-                                                            "scan plane needs few, and neighbour search costs per point)")
+                                                            "scan plane needs few, and neighbour search costs per "
+                                                            "point)")
     initial_threshold: float = Field(0.5, gt=0, description="KISS-ICP adaptive threshold start, m")
     min_motion: float = Field(0.05, ge=0, description="KISS-ICP adaptive threshold min motion, m")
     max_iterations: int = Field(500, gt=0, description="KISS-ICP iteration limit per scan")

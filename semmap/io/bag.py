@@ -552,7 +552,6 @@ class _Bytes:
     resident; a message still in use reads them again from the page cache."""
 
     def __init__(self, bio: Any) -> None:
-        self.bio = bio
         try:
             self.mapped: Any = mmap.mmap(bio.fileno(), 0, access=mmap.ACCESS_READ)
         except (OSError, ValueError, AttributeError, io.UnsupportedOperation):

@@ -3,6 +3,16 @@
 semmap writes trinary maps: occupied pixels 0 (black), free 254, unknown 205, the
 values ``map_saver`` writes. The image's top row is the highest y; ``origin`` is
 the pose of the lower-left pixel.
+
+Both loaders turn a pixel into an occupancy ``p = (255 - v) / 255`` (``negate: 0``) and
+compare it with the YAML's thresholds: ROS1's ``map_server`` calls it occupied when
+``p > occupied_thresh`` and free when ``p < free_thresh``; nav2's ``map_io`` when
+``p >= occupied_thresh`` and ``p <= free_thresh`` (in float32 since 2025). Unknown grey 205
+is ``p = 0.196078...``: with nav2's default ``free_thresh: 0.25`` every unknown cell loads as
+free, and a planner plans through unexplored space. semmap writes ``free_thresh: 0.196``
+and ``occupied_thresh: 0.65``, as ROS1's ``map_saver`` and nav2's trinary saver do, under
+which 0, 205 and 254 load as occupied, unknown and free in both loaders
+(:func:`check_trinary_thresholds`).
 """
 
 from __future__ import annotations
@@ -18,11 +28,29 @@ from ..errors import ConfigError
 from ..records import GridSpec
 from .yamlio import read_yaml, write_yaml
 
-__all__ = ["OCCUPIED", "FREE", "UNKNOWN", "write_map", "read_map", "MapImage"]
+__all__ = ["OCCUPIED", "FREE", "UNKNOWN", "OCCUPIED_THRESH", "FREE_THRESH", "check_trinary_thresholds",
+           "write_map", "read_map", "MapImage"]
 
 OCCUPIED = 0
 FREE = 254
 UNKNOWN = 205
+#: the thresholds of every trinary map semmap writes (those of ROS1's map_saver and nav2's trinary saver)
+OCCUPIED_THRESH = 0.65
+FREE_THRESH = 0.196
+
+
+def check_trinary_thresholds(occupied_thresh: float, free_thresh: float) -> None:
+    """Raise ``ValueError`` unless 0, 205 and 254 load as occupied, unknown and free under
+    ROS1 map_server's rule (strict, double) and nav2's (inclusive, float32) alike."""
+    for v, want in ((OCCUPIED, "occupied"), (UNKNOWN, "unknown"), (FREE, "free")):
+        p64 = (255 - v) / 255.0
+        p32 = np.float32(1.0) - np.float32(v) / np.float32(255.0)
+        ros1 = "occupied" if p64 > occupied_thresh else "free" if p64 < free_thresh else "unknown"
+        nav2 = ("occupied" if p32 >= np.float32(occupied_thresh) else
+                "free" if p32 <= np.float32(free_thresh) else "unknown")
+        if ros1 != want or nav2 != want:
+            raise ValueError(f"occupied_thresh {occupied_thresh} / free_thresh {free_thresh}: pixel {v} would "
+                             f"load as {ros1} (ROS1 map_server) / {nav2} (nav2), not {want}")
 
 
 def write_map(
@@ -30,12 +58,11 @@ def write_map(
     spec: GridSpec,
     occupied: NDArray[np.bool_],
     known: NDArray[np.bool_] | None = None,
-    occupied_thresh: float = 0.65,
-    free_thresh: float = 0.25,
 ) -> Path:
     """Write a trinary map: ``occupied`` and ``known`` are (H, W) in grid order (row 0 = lowest y).
 
-    The image goes beside the YAML with the same stem (``.pgm``). Returns the YAML path.
+    The image goes beside the YAML with the same stem (``.pgm``); cells not ``known`` are
+    unknown (205), and load as unknown in ROS1's map_server and nav2's. Returns the YAML path.
     """
     yaml_path = Path(yaml_path)
     occ = np.asarray(occupied, dtype=bool)
@@ -54,8 +81,8 @@ def write_map(
         "resolution": float(spec.resolution),
         "origin": [float(spec.origin_x), float(spec.origin_y), 0.0],
         "negate": 0,
-        "occupied_thresh": float(occupied_thresh),
-        "free_thresh": float(free_thresh),
+        "occupied_thresh": OCCUPIED_THRESH,
+        "free_thresh": FREE_THRESH,
     }
     return write_yaml(yaml_path, meta)
 
@@ -75,7 +102,8 @@ class MapImage:
 
 
 def read_map(yaml_path: str | Path) -> MapImage:
-    """Read a map_server YAML + image the way map_server does (trinary/scale, negate, thresholds)."""
+    """Read a map_server YAML + image the way ROS1's map_server does: ``p = (255 - v) / 255`` (``v``
+    when ``negate``), occupied when ``p > occupied_thresh``, free when ``p < free_thresh``, else unknown."""
     p = Path(yaml_path)
     meta = read_yaml(p, "map")
     try:

@@ -82,8 +82,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
     t1 = time.perf_counter()
     spec = cleaned.spec
 
-    write_map(out / "map.yaml", spec, cleaned.occupied, known=~cleaned.unknown,
-              occupied_thresh=0.65, free_thresh=0.25)
+    write_map(out / "map.yaml", spec, cleaned.occupied, known=~cleaned.unknown)
     write_map(out / "semi_static.yaml", spec, cleaned.semi_static, known=~cleaned.unknown)
     objects = [o.as_dict() for o in cleaned.objects]
     (out / "semi_static_objects.json").write_text(json.dumps({"frame_id": "map", "objects": objects}, indent=2),

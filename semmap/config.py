@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import ConfigError
 
@@ -40,7 +40,8 @@ __all__ = [
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and inf pass every bound they are compared with (inf > 0), so no setting takes them
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Mount(_Model):
@@ -195,10 +196,12 @@ class FramesConfig(_Model):
 class SyncConfig(_Model):
     """Pairing scans with images and odometry."""
 
-    max_image_offset: float = Field(0.1, ge=0, description="pair a scan with the nearest image within this, s")
+    max_image_offset: float = Field(0.1, ge=0, le=3600, description="pair a scan with the nearest image within "
+                                                                     "this, s")
     motion_compensation: bool = Field(True, description="move the scan to the image time through odometry")
     deskew: bool = Field(True, description="undo the robot's motion during a scan sweep through odometry")
-    max_odom_gap: float = Field(0.5, gt=0, description="odometry gaps longer than this are not interpolated, s")
+    max_odom_gap: float = Field(0.5, gt=0, le=3600, description="odometry gaps longer than this are not "
+                                                                 "interpolated, s")
 
 
 class SegmentationConfig(_Model):
@@ -268,17 +271,18 @@ class PaintConfig(_Model):
 class EkfConfig(_Model):
     """SE(2) EKF fusing wheel odometry (prediction) with KISS-ICP poses (measurement)."""
 
-    odom_trans_noise: float = Field(0.02, ge=0, description="std of translation per metre driven (fraction)")
-    odom_rot_noise: float = Field(0.02, ge=0, description="std of rotation per radian turned (fraction)")
-    odom_rot_per_m: float = Field(0.005, ge=0, description="std of heading change per metre driven, rad/m")
+    odom_trans_noise: float = Field(0.02, ge=0, le=10, description="std of translation per metre driven (fraction)")
+    odom_rot_noise: float = Field(0.02, ge=0, le=10, description="std of rotation per radian turned (fraction)")
+    odom_rot_per_m: float = Field(0.005, ge=0, le=10, description="std of heading change per metre driven, rad/m")
     # The random-walk terms are deliberately larger than a wheel encoder's white noise: they also
     # stand for odometry bias the filter does not model. Smaller values let the bias leak into the
     # fused pose (and from there into KISS-ICP's local map); see tools/bench_registration.py.
-    odom_trans_rw: float = Field(0.01, ge=0, description="translation random walk, m per sqrt(m driven)")
-    odom_rot_rw: float = Field(0.01, ge=0, description="heading random walk, rad per sqrt(m driven + rad turned)")
-    odom_min_noise: float = Field(1e-4, ge=0, description="floor on per-step noise std (m and rad)")
-    icp_xy_std: float = Field(0.005, gt=0, description="ICP position measurement std, m")
-    icp_yaw_std: float = Field(0.001, gt=0, description="ICP heading measurement std, rad")
+    odom_trans_rw: float = Field(0.01, ge=0, le=10, description="translation random walk, m per sqrt(m driven)")
+    odom_rot_rw: float = Field(0.01, ge=0, le=10, description="heading random walk, rad per sqrt(m driven + rad "
+                                                               "turned)")
+    odom_min_noise: float = Field(1e-4, ge=0, le=10, description="floor on per-step noise std (m and rad)")
+    icp_xy_std: float = Field(0.005, gt=0, le=100, description="ICP position measurement std, m")
+    icp_yaw_std: float = Field(0.001, gt=0, le=10, description="ICP heading measurement std, rad")
     gate_chi2: float = Field(16.27, gt=0, description="reject ICP poses beyond this Mahalanobis² (3 dof, 99.9 %)")
     reset_after: int = Field(5, ge=0, description="after this many ICP results gated out in a row, trust ICP: "
                                                   "the filter restarts from its pose (odometry slipped); 0: never")
@@ -291,20 +295,21 @@ class RegistrationConfig(_Model):
         "fused", description="fused: EKF of wheel odometry + KISS-ICP; icp: KISS-ICP alone; "
                              "odometry: wheel odometry alone")
     voxel_size: float = Field(0.15, gt=0, description="KISS-ICP voxel size, m (0.1-0.5 indoors)")
-    max_range: float = Field(20.0, gt=0, description="points beyond this range are not registered, m")
+    max_range: float = Field(20.0, gt=0, le=1000, description="points beyond this range are not registered, m")
     max_source_points: int = Field(100, ge=0, description="thin the ICP source to about this many points "
                                                          "(0: keep KISS-ICP's down-sampling as is)")
     min_range: float = Field(0.1, ge=0, description="points closer than this are not registered, m")
-    max_points_per_voxel: int = Field(5, gt=0, description="points kept per map voxel (KISS-ICP: 20 for 3D; a 2D "
-                                                            "scan plane needs few, and neighbour search costs per "
-                                                            "point)")
-    initial_threshold: float = Field(0.5, gt=0, description="KISS-ICP adaptive threshold start, m")
+    max_points_per_voxel: int = Field(5, gt=0, le=1000, description="points kept per map voxel (KISS-ICP: 20 for "
+                                                                     "3D; a 2D scan plane needs few, and neighbour "
+                                                                     "search costs per point)")
+    initial_threshold: float = Field(0.5, gt=0, le=1000, description="KISS-ICP adaptive threshold start, m")
     min_motion: float = Field(0.05, ge=0, description="KISS-ICP adaptive threshold min motion, m")
     max_iterations: int = Field(500, gt=0, description="KISS-ICP iteration limit per scan")
     convergence: float = Field(2e-3, gt=0, description="KISS-ICP stops when an update is below this (m and rad; "
                                                         "KISS-ICP's 3D default is 1e-4; 2 mm is a 25th of a 5 cm "
                                                         "cell)")
-    max_threads: int = Field(1, ge=0, description="KISS-ICP threads (0: all cores; 2D scans are fastest on one)")
+    max_threads: int = Field(1, ge=0, le=256, description="KISS-ICP threads (0: all cores; 2D scans are fastest on "
+                                                           "one)")
     min_points: int = Field(20, ge=3, description="fewer down-sampled points than this: ICP is not run "
                                                   "and the step counts as failed")
     exclude_dynamic: bool = Field(True, description="points painted dynamic are not matched or mapped")
@@ -317,8 +322,8 @@ class GridConfig(_Model):
     resolution: float = Field(0.05, gt=0, description="m per cell")
     l_occ: float = Field(0.85, gt=0, description="log-odds added at a hit")
     l_free: float = Field(0.4, gt=0, description="log-odds removed along a ray")
-    l_min: float = Field(-2.0, description="log-odds clamp, low")
-    l_max: float = Field(3.5, description="log-odds clamp, high")
+    l_min: float = Field(-2.0, lt=0, description="log-odds clamp, low")
+    l_max: float = Field(3.5, gt=0, description="log-odds clamp, high")
     max_free_range: float = Field(10.0, gt=0, description="free space is cleared at most this far from the sensor "
                                                           "(beams without a return: to here), m")
     tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
@@ -327,16 +332,25 @@ class GridConfig(_Model):
                                                             "eroding surfaces)")
     free_erode: bool = Field(True, description="erode each scan's free space by one cell, so rays grazing a "
                                                "surface do not clear it")
-    dropout_guard: int = Field(2, ge=0, description="a beam without a return whose neighbours within this "
+    dropout_guard: int = Field(2, ge=0, le=1000, description="a beam without a return whose neighbours within this "
                                                     "many beams on both sides returned is a dropout: it "
                                                     "clears no further than they do (0: off)")
+
+    @model_validator(mode="after")
+    def _clamps_fit_the_storage(self) -> GridConfig:
+        # the grid keeps log-odds as uint16 steps of 0.001 between the clamps
+        if self.l_max - self.l_min > 65.535:
+            raise ValueError(f"l_max - l_min is {self.l_max - self.l_min:g}, at most 65.535 "
+                             "(log-odds are kept in steps of 0.001 in 16 bits)")
+        return self
 
 
 class CleaningConfig(_Model):
     """Turning the fused grid into the cleaned map."""
 
-    occupied_logodds: float = Field(0.6, description="cells above this log-odds are occupied")
-    free_logodds: float = Field(-0.2, description="cells below this log-odds are free (one free pass: -l_free)")
+    occupied_logodds: float = Field(0.6, ge=-100, le=100, description="cells above this log-odds are occupied")
+    free_logodds: float = Field(-0.2, ge=-100, le=100, description="cells below this log-odds are free (one free "
+                                                                   "pass: -l_free)")
     hit_ratio: float = Field(0.25, ge=0, le=1, description="also occupied: cells returning at least this share "
                                                            "of the scans that observed them (thin legs; 0: off)")
     min_hits: int = Field(5, ge=1, description="scans that must have returned from a cell for hit_ratio to apply")
@@ -345,17 +359,20 @@ class CleaningConfig(_Model):
     semi_static_fraction: float = Field(0.5, ge=0, le=1, description="flag a cell semi-static when this share "
                                                                        "of its labelled hits was semi-static")
     min_labelled_hits: int = Field(2, ge=1, description="camera-labelled hits a cell needs before its class counts")
-    object_link_distance: float = Field(0.45, gt=0, description="cells of one object are at most this far apart, m "
-                                                                 "(a person's legs ~0.2 m, a chair's ~0.4 m)")
-    wall_min_length: float = Field(0.4, gt=0, description="straight runs of occupied cells this long are walls, "
-                                                          "judged as a whole segment, m")
-    structure_min_size: float = Field(1.0, gt=0, description="touching occupied cells longer than this are "
-                                                             "structure: their unlabelled cells stay static, m")
-    leg_max_size: float = Field(0.2, ge=0, description="an isolated blob no longer than this with no camera "
-                                                       "label is a furniture leg, flagged semi-static, m "
-                                                       "(0: off)")
-    label_spread_distance: float = Field(0.6, ge=0, description="unlabelled cells take their object's verdict "
-                                                                "only this close to a cell labelled so, m")
+    object_link_distance: float = Field(0.45, gt=0, le=10, description="cells of one object are at most this far "
+                                                                        "apart, m (a person's legs ~0.2 m, a "
+                                                                        "chair's ~0.4 m)")
+    wall_min_length: float = Field(0.4, gt=0, le=100, description="straight runs of occupied cells this long are "
+                                                                   "walls, judged as a whole segment, m")
+    structure_min_size: float = Field(1.0, gt=0, le=1000, description="touching occupied cells longer than this "
+                                                                       "are structure: their unlabelled cells stay "
+                                                                       "static, m")
+    leg_max_size: float = Field(0.2, ge=0, le=10, description="an isolated blob no longer than this with no camera "
+                                                               "label is a furniture leg, flagged semi-static, m "
+                                                               "(0: off)")
+    label_spread_distance: float = Field(0.6, ge=0, le=100, description="unlabelled cells take their object's "
+                                                                         "verdict only this close to a cell "
+                                                                         "labelled so, m")
 
 
 class BuildConfig(_Model):

@@ -26,13 +26,40 @@ class BagError(SemmapError):
     exit_code = 3
 
 
-class OutputExistsError(SemmapError):
-    """The output path exists and ``force`` was not given."""
+class OutputError(SemmapError):
+    """The output path cannot or must not be written (unwritable, not a semmap folder, holds an input)."""
 
     exit_code = 4
+
+
+class OutputExistsError(OutputError):
+    """The output path exists and ``force`` was not given."""
 
 
 class SimulationError(SemmapError):
     """A simulated world or tour is inconsistent (collision, robot out of bounds)."""
 
     exit_code = 5
+
+
+class WorkerError(SemmapError):
+    """A worker process stopped without its result: killed (the out-of-memory killer sends
+    SIGKILL), crashed in native code (SIGSEGV), or ran out of memory."""
+
+    exit_code = 6
+
+
+class InternalError(Exception):
+    """A bug in a worker process. The message is the worker's exception type and message; the
+    worker's own traceback is this exception's ``__cause__`` (shown with ``--debug``)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) raised as an exception, as Ctrl-C raises
+    :class:`KeyboardInterrupt`, so that workers, shared memory and partial output are cleaned up."""
+
+    def __init__(self, signum: int) -> None:
+        import signal
+
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)

@@ -8,6 +8,7 @@ radians; 4x4 matrices appear only at library boundaries.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,12 +33,15 @@ __all__ = [
     "quaternion_to_yaw",
     "is_rotation",
     "project_points",
+    "unproject_pixels",
 ]
 
 
 def _wrap1(a: float) -> float:
     """One angle wrapped to (-pi, pi], in plain floats (the hot path: a pose at a time)."""
-    return math.pi - (math.pi - a) % (2.0 * math.pi)
+    w = math.pi - (math.pi - a) % (2.0 * math.pi)
+    # the modulo of a tiny negative number rounds up to 2 pi (a = pi + 1 ulp gives -pi): that is +pi
+    return math.pi if w == -math.pi else w
 
 
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
@@ -46,6 +50,7 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
         return _wrap1(float(angle))
     a = np.asarray(angle, dtype=np.float64)
     w = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    w = np.where(w == -np.pi, np.pi, w)  # as in _wrap1: a modulo rounded up to 2 pi
     return float(w) if w.ndim == 0 else w
 
 
@@ -199,6 +204,44 @@ def is_rotation(r: ArrayLike, tol: float = 1e-6) -> bool:
     return bool(np.allclose(r.T @ r, np.eye(3), atol=tol) and abs(np.linalg.det(r) - 1.0) < tol)
 
 
+@lru_cache(maxsize=64)
+def _radial_table(model: str, d: tuple[float, ...]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Undistorted normalised radius r (x/z, y/z) → distorted one, sampled up to where the model's radial
+    distortion stops being one-to-one (or to 89.5 deg): both increasing. Only the radial terms count
+    (tangential and thin-prism terms are small in real lenses)."""
+    theta = np.radians(np.linspace(0.0, 89.5, 4000))
+    r = np.tan(theta)
+    if model == "fisheye":  # distorted radius theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)
+        k = (list(d) + [0.0] * 4)[:4]
+        t2 = theta * theta
+        dist = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+        den = np.ones_like(theta)
+    else:  # r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
+        k = (list(d) + [0.0] * 8)[:8]
+        r2 = r * r
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            num = 1.0 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
+            den = 1.0 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+            dist = r * num / den
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(dist[1:]) | (den[1:] <= 0.0) | (np.diff(dist) <= 0.0)
+    n = int(np.argmax(bad)) + 1 if bad.any() else r.size  # samples before the turn
+    r, dist = r[:n].copy(), dist[:n].copy()
+    r.setflags(write=False)
+    dist.setflags(write=False)
+    return r, dist
+
+
+def _fold_radius(model: str, d: tuple[float, ...]) -> float:
+    """The normalised radius (x/z, y/z) up to which a camera model's radial distortion is one-to-one.
+
+    Past it, OpenCV's distortion polynomial turns back (barrel distortion, large |k1|) and folds
+    points far outside the field of view back into the image. ``inf``: no fold before 89.5 deg.
+    """
+    r, _ = _radial_table(model, d)
+    return math.inf if r.size == 4000 else float(r[-1])
+
+
 def project_points(
     K: ArrayLike,
     D: ArrayLike,
@@ -211,18 +254,24 @@ def project_points(
     """Project (N, 3) camera-optical-frame points to pixels with OpenCV's camera models.
 
     Returns pixel coordinates (N, 2) and a mask of points in front of the camera
-    (z > ``min_depth``) that land inside the image.
+    (z > ``min_depth``) that land inside the image. Points behind the camera, and points
+    beyond the angle where the distortion polynomial turns back (which OpenCV would fold
+    into the image), have NaN pixels and are never inside.
     """
     import cv2
 
     pts = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
     uv = np.full((pts.shape[0], 2), np.nan)
-    front = pts[:, 2] > min_depth
+    d = np.asarray(D, dtype=np.float64).ravel()
+    z = pts[:, 2]
+    front = z > min_depth
+    r_fold = _fold_radius(model, tuple(d.tolist())) if d.any() else math.inf
+    if r_fold < math.inf:
+        front &= pts[:, 0] ** 2 + pts[:, 1] ** 2 < (r_fold * np.where(front, z, 0.0)) ** 2
     if front.any():
         obj = pts[front].reshape(-1, 1, 3)
         zero = np.zeros(3)
         k = np.asarray(K, dtype=np.float64)
-        d = np.asarray(D, dtype=np.float64).ravel()
         if model == "fisheye":
             img, _ = cv2.fisheye.projectPoints(obj, zero, zero, k, d)
         else:
@@ -230,3 +279,72 @@ def project_points(
         uv[front] = img.reshape(-1, 2)
     inside = front & (uv[:, 0] >= -0.5) & (uv[:, 0] < width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < height - 0.5)
     return uv, inside
+
+
+def unproject_pixels(
+    K: ArrayLike,
+    D: ArrayLike,
+    uv: ArrayLike,
+    depth: ArrayLike,
+    model: str = "pinhole",
+) -> NDArray[np.float64]:
+    """The inverse of :func:`project_points`: (N, 2) pixels at camera depths z (N,) → (N, 3) points
+    in the camera optical frame.
+
+    The radial distortion is inverted on a table of the model (one-to-one up to its fold, see
+    :func:`project_points`), then Newton steps on OpenCV's projection remove the rest. Unlike
+    OpenCV's fixed-point undistortion this converges in the image corners of strongly distorted
+    and wide fisheye lenses. Pixels the model cannot reach from in front of the camera get the
+    ray at the edge of its valid field of view.
+    """
+    import cv2
+
+    px = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    z = np.broadcast_to(np.asarray(depth, dtype=np.float64).reshape(-1), (px.shape[0],))
+    if px.shape[0] == 0:
+        return np.zeros((0, 3))
+    k = np.asarray(K, dtype=np.float64)
+    d = np.asarray(D, dtype=np.float64).ravel()
+    yd = (px[:, 1] - k[1, 2]) / k[1, 1]
+    xd = (px[:, 0] - k[0, 2] - k[0, 1] * yd) / k[0, 0]
+    xn = np.column_stack([xd, yd])
+    if d.any() or model == "fisheye":  # (a fisheye without distortion is still equidistant, not pinhole)
+        r_tab, rd_tab = _radial_table(model, tuple(d.tolist()))
+        rd = np.hypot(xd, yd)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(rd > 0, np.interp(rd, rd_tab, r_tab) / rd, 1.0)
+        xn *= scale[:, None]
+        r_max = float(r_tab[-1])
+        zero = np.zeros(3)
+        proj = cv2.fisheye.projectPoints if model == "fisheye" else cv2.projectPoints
+
+        def pixels(x: NDArray[np.float64]) -> NDArray[np.float64]:
+            obj = np.column_stack([x, np.ones(len(x))]).reshape(-1, 1, 3)
+            return proj(obj, zero, zero, k, d)[0].reshape(-1, 2)
+
+        h = 1e-7
+        at = pixels(xn)
+        err = np.hypot(*(px - at).T)
+        for _ in range(20):
+            if not np.nanmax(err) > 1e-10:
+                break
+            res = px - at
+            jx = (pixels(xn + [h, 0.0]) - at) / h
+            jy = (pixels(xn + [0.0, h]) - at) / h
+            det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = np.column_stack([jy[:, 1] * res[:, 0] - jy[:, 0] * res[:, 1],
+                                        jx[:, 0] * res[:, 1] - jx[:, 1] * res[:, 0]]) / det[:, None]
+            step[~np.isfinite(step)] = 0.0
+            # damped: a step must lower the pixel error and stay inside the model's one-to-one region
+            for _ in range(6):
+                cand = xn + step
+                at_c = pixels(cand)
+                err_c = np.hypot(*(px - at_c).T)
+                better = (err_c < err) & (np.hypot(*cand.T) < r_max)
+                xn[better], at[better], err[better] = cand[better], at_c[better], err_c[better]
+                step[better] = 0.0
+                if not step.any():
+                    break
+                step *= 0.5
+    return np.column_stack([xn[:, 0] * z, xn[:, 1] * z, z])

@@ -16,6 +16,7 @@ Data flows one way, one scan at a time, so memory does not grow with the tour:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections import deque
@@ -29,18 +30,20 @@ from numpy.typing import NDArray
 
 from .classes import load_class_table
 from .config import BuildConfig, merge_overrides
-from .errors import BagError
+from .errors import BagError, ConfigError
+from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
-from .io.bag import ReadStats, iter_messages, message_count, open_bag
+from .io.bag import ReadStats, iter_messages, message_count, open_bag, resolve_bag_path
 from .io.messages import odometry_from_msg, scan_from_msg
 from .io.tour import IMAGE_T, Tour, load_build_config, open_tour
 from .paint.motion import OdomTrack
 from .paint.painter import Painter
 from .records import PaintedScan, Scan, Segmentation
 from .segment.base import backend_consumes
-from .workers import FrameWorker, InProcessFrames, InProcessMapper, MapperResult, MapperWorkers
+from .workers import FrameSource, FrameWorker, InProcessFrames, InProcessMapper, Mapper, MapperResult, MapperWorkers
 
 __all__ = ["build", "BuildResult"]
+
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +81,8 @@ class _Trace:
 class _Pipeline:
     """The streaming core: buffers just enough to pair scans with images and odometry."""
 
-    def __init__(self, tour: Tour, cfg: BuildConfig, class_names: tuple[str, ...], frames: Any, mapper: Any):
+    def __init__(self, tour: Tour, cfg: BuildConfig, class_names: tuple[str, ...], frames: FrameSource | None,
+                 mapper: Mapper | None):
         self.tour = tour
         self.cfg = cfg
         self.class_names = class_names
@@ -99,6 +103,8 @@ class _Pipeline:
                        "bad_scans": 0, "scans_out_of_order": 0}
         self._last_scan_ns: int | None = None
         self.cpu_s: dict[str, float] = {}  # CPU time of the streaming loop, per process
+        self.warnings: list[str] = []  # what the build warned about
+        self.unpaired_offsets_ns: list[int] = []  # scans with no image close enough: the nearest one's offset
         self.mobility_hits = np.zeros(4, np.int64)
         self.class_hits = np.zeros(len(class_names), np.int64)
 
@@ -151,7 +157,11 @@ class _Pipeline:
         if not self.segs:
             return None
         best = min(self.segs, key=lambda s: abs(s.stamp_ns - mid))
-        return best if abs(best.stamp_ns - mid) <= self.max_offset_ns else None
+        if abs(best.stamp_ns - mid) <= self.max_offset_ns:
+            return best
+        if len(self.unpaired_offsets_ns) < 4096:  # why scans found no image: for the warning at the end
+            self.unpaired_offsets_ns.append(abs(best.stamp_ns - mid))
+        return None
 
     def _process(self, scan: Scan) -> None:
         if self._last_scan_ns is not None and scan.stamp_ns <= self._last_scan_ns:
@@ -242,77 +252,201 @@ def build(
     ``tour`` is a bag or a folder holding one; ``config`` a YAML file or a
     :class:`~semmap.config.BuildConfig`; ``calibration`` overrides the calibration file;
     ``overrides`` is a dict merged over the config (as if written in its YAML).
-    Nothing appears at ``out`` until the whole map folder is written.
+
+    ``out`` is checked before any work: it must not exist unless ``force``, and ``force``
+    replaces only a semmap map folder, never the tour being read. Nothing appears at ``out``
+    until the whole map folder is written; on any error or interrupt nothing is left there,
+    and every worker process is stopped.
     """
     t_start = time.perf_counter()
-    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
-    frames: Any = None
-    class_names: tuple[str, ...] = ()
-    if tinfo.topics.frames is None:
-        log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
-    else:
-        from .segment.base import create_segmenter
-
-        probe = create_segmenter(cfg.segmentation)  # class names (backends load models lazily)
-        class_names = probe.names
-        probe.close()
-    mapper: Any = None
-    try:
-        msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
-        if cfg.workers:  # started first: they load their libraries while the rest is set up
-            mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
+    inputs = [p for p in (tour, calibration, config if not isinstance(config, BuildConfig) else None) if p]
+    with contextlib.suppress(BagError):  # the bag inside a tour folder is an input too (opening it says why not)
+        inputs.append(resolve_bag_path(tour))
+    with _KeptWarnings() as warned, atomic_dir(out, force, marker=MAP_MARKER, inputs=inputs,
+                                               what="semmap map folder") as tmp:
+        tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
+        cfg = _effective_config(tinfo, cfg)
+        _log_detected(tinfo, cfg)
+        frames: FrameSource | None = None
+        class_names: tuple[str, ...] = ()
+        if tinfo.topics.frames is None:
+            log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
         else:
-            mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
-        if tinfo.topics.frames is not None:
-            if cfg.workers and not _frames_are_light(cfg, msgtype):
-                intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
-                shape = (intr.height, intr.width) if intr is not None else None
-                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
+            from .segment.base import create_segmenter
+
+            probe = create_segmenter(cfg.segmentation)  # class names (backends load models lazily)
+            class_names = probe.names
+            probe.close()
+        check_grid_memory(cfg.grid, cfg.registration.max_range, len(class_names))
+        mapper: Mapper | None = None
+        try:
+            msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
+            if cfg.workers:  # started first: they load their libraries while the rest is set up
+                mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
             else:
-                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
-        pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
-        for part in (frames, mapper):  # workers load their libraries before the clock starts
-            if part is not None:
-                part.wait_ready()
-        topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
-        stats = ReadStats()
-        with open_bag(tinfo.bag) as reader:  # opened once: counting and streaming share its index
-            n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan, reader)
-            t_loop = time.perf_counter()
-            cpu_loop = time.process_time()
-            for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats, reader):
-                if topic == tinfo.topics.scan:
-                    pipe.on_scan(t_bag, msg)
-                    if progress is not None and stats.read.get(topic, 0) % 50 == 0:
-                        progress(stats.read.get(topic, 0), n_scan_msgs)
+                mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
+            if tinfo.topics.frames is not None:
+                if cfg.workers and not _frames_are_light(cfg, msgtype):
+                    intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
+                    shape = (intr.height, intr.width) if intr is not None else None
+                    frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
                 else:
-                    pipe.on_odometry(msg)
-                pipe.process_ready(t_bag)
-            pipe.flush()
-        t_wait = time.perf_counter()
-        pipe.result = mapper.finish()
-        pipe.trace.poses = pipe.result.poses
-        pipe.timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
-        loop_s = time.perf_counter() - t_loop
-        pipe.cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **pipe.result.cpu_s}
-        if "cpu_s" in pipe.frame_counts:
-            pipe.cpu_s["frames"] = pipe.frame_counts["cpu_s"]
-        pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.hand_over)
-        if progress is not None:
-            progress(n_scan_msgs, n_scan_msgs)
+                    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+            pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
+            for part in (frames, mapper):  # workers load their libraries before the clock starts
+                if part is not None:
+                    part.wait_ready()
+            stats, loop_s = _stream(tinfo, pipe, mapper, progress)
+        finally:
+            for part in (frames, mapper):
+                if part is not None:
+                    part.close()
         if pipe.counts["scans"] == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
-        ps = pipe.painter.stats
-        if cfg.paint.below_range_min == "invalid" and ps.below_range_min > 0.02 * max(ps.beams, 1):
-            log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
-                        "driver reports 'nothing seen' this way (Hokuyo URG does), set "
-                        "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
+        _warn_about_painting(tinfo, cfg, pipe)
+        pipe.warnings = warned.lines()
         from .mapfolder.writer import write_map_folder
 
-        with atomic_dir(out, force) as tmp:
-            summary = write_map_folder(tmp, tinfo, cfg, pipe, pipe.result.layers, stats, loop_s, t_start)
-    finally:
-        for part in (frames, mapper):
-            if part is not None:
-                part.close()
+        summary = write_map_folder(tmp, tinfo, cfg, pipe, pipe.result.layers, stats, loop_s, t_start)
     return BuildResult(Path(out), summary, time.perf_counter() - t_start)
+
+
+#: the file that marks a folder as a semmap map folder (``--force`` replaces nothing else)
+MAP_MARKER = "summary.json"
+
+
+class _KeptWarnings(logging.Handler):
+    """The warnings semmap logs during a build (workers' included), for ``summary.json`` and the report;
+    a warning repeated is kept once, with its count."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self._seen: dict[str, int] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        self._seen[text] = self._seen.get(text, 0) + 1
+
+    def lines(self) -> list[str]:
+        return [t if n == 1 else f"{t} (x{n})" for t, n in self._seen.items()]
+
+    def __enter__(self) -> _KeptWarnings:
+        logging.getLogger("semmap").addHandler(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        logging.getLogger("semmap").removeHandler(self)
+
+
+def _stream(tinfo: Tour, pipe: _Pipeline, mapper: Mapper, progress: ProgressFn | None) -> tuple[ReadStats, float]:
+    """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
+    topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
+    stats = ReadStats()
+    with open_bag(tinfo.bag) as reader:  # opened once: counting and streaming share its index
+        n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan, reader)
+        t_loop = time.perf_counter()
+        cpu_loop = time.process_time()
+        for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats, reader):
+            if topic == tinfo.topics.scan:
+                pipe.on_scan(t_bag, msg)
+                if progress is not None and stats.read.get(topic, 0) % 50 == 0:
+                    progress(stats.read.get(topic, 0), n_scan_msgs)
+            else:
+                pipe.on_odometry(msg)
+            pipe.process_ready(t_bag)
+        pipe.flush()
+    t_wait = time.perf_counter()
+    pipe.result = mapper.finish()
+    pipe.trace.poses = pipe.result.poses
+    pipe.timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
+    loop_s = time.perf_counter() - t_loop
+    pipe.cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **pipe.result.cpu_s}
+    if "cpu_s" in pipe.frame_counts:
+        pipe.cpu_s["frames"] = pipe.frame_counts["cpu_s"]
+    pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.hand_over)
+    if progress is not None:
+        progress(n_scan_msgs, n_scan_msgs)
+    return stats, loop_s
+
+
+def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:
+    """The config as the build runs it, with what was detected filled in (``config.yaml`` of the map
+    folder rebuilds the same map); contradictions with the tour are errors."""
+    reg = cfg.registration
+    if tinfo.topics.odometry is None:
+        if reg.mode == "odometry":
+            raise ConfigError(f"{tinfo.bag}: registration.mode is 'odometry' but the tour has no odometry "
+                              f"(topics.odometry: {cfg.topics.odometry or 'none found'}); use mode 'icp' or "
+                              f"name the odometry topic")
+        if reg.mode == "fused":
+            log.info("no odometry: registering with KISS-ICP alone (registration.mode icp)")
+            reg = reg.model_copy(update={"mode": "icp"})
+    topics = cfg.topics.model_copy(update={
+        "scan": tinfo.topics.scan,
+        "odometry": tinfo.topics.odometry or "none",
+        "camera_info": tinfo.topics.camera_info,
+        **({"labels": tinfo.topics.frames} if tinfo.topics.frames_kind == "labels" else {}),
+        **({"image": tinfo.topics.frames} if tinfo.topics.frames_kind == "rgb" else {}),
+    })
+    frames = cfg.frames.model_copy(update={"base": tinfo.base_frame, "lidar": tinfo.lidar_frame})
+    update: dict[str, Any] = {"topics": topics, "frames": frames, "registration": reg}
+    if tinfo.calibration_path is not None:
+        update["calibration"] = tinfo.calibration_path.resolve()
+    return cfg.model_copy(update=update)
+
+
+def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:
+    """``-v``: what was found in the data, and where it came from."""
+    t = tinfo.topics
+    log.info("tour %s: scans %s (frame %s), odometry %s, %s %s, camera_info %s", tinfo.bag, t.scan,
+             tinfo.lidar_frame, t.odometry or "none", "label images" if t.frames_kind == "labels" else "images",
+             t.frames or "none", t.camera_info or "none")
+    xyz = np.round(tinfo.T_base_lidar[:3, 3], 3).tolist()
+    yaw = float(np.degrees(np.arctan2(tinfo.T_base_lidar[1, 0], tinfo.T_base_lidar[0, 0])))
+    log.info("T_base_lidar (%s -> %s) from %s: xyz %s m, yaw %.1f deg", tinfo.base_frame, tinfo.lidar_frame,
+             tinfo.T_base_lidar_source, xyz, yaw)
+    if tinfo.calibration is not None:
+        log.info("calibration %s: %dx%d camera, camera frame %s", tinfo.calibration_path or "from the bag",
+                 tinfo.calibration.intrinsics.width, tinfo.calibration.intrinsics.height,
+                 tinfo.calibration.camera_frame)
+    log.info("registration %s; segmentation backend %s; scans paired with images within %.3f s",
+             cfg.registration.mode, cfg.segmentation.backend, cfg.sync.max_image_offset)
+
+
+def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, pipe: _Pipeline) -> None:
+    """Say so when the camera labelled (almost) nothing, and why."""
+    ps = pipe.painter.stats
+    if cfg.paint.below_range_min == "invalid" and ps.below_range_min > 0.02 * max(ps.beams, 1):
+        log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
+                    "driver reports 'nothing seen' this way (Hokuyo URG does), set "
+                    "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
+    if tinfo.topics.frames is None:
+        return
+    n = pipe.counts["scans"]
+    with_image = n - pipe.counts["scans_without_image"]
+    frames = pipe.frame_counts.get("frames", 0)
+    if with_image < 0.1 * n:
+        if frames == 0:
+            why = f"no frame on {tinfo.topics.frames} could be read or segmented"
+        elif pipe.unpaired_offsets_ns:
+            off = float(np.median(pipe.unpaired_offsets_ns)) * 1e-9
+            why = (f"the nearest image was typically {off:.3f} s from a scan, more than sync.max_image_offset "
+                   f"({cfg.sync.max_image_offset} s): are the camera's stamps on another clock, or is "
+                   f"the camera much slower than the LiDAR?")
+        else:
+            why = "the images do not overlap the scans in time"
+        log.warning("only %d of %d scans were paired with an image on %s: %s", with_image, n, tinfo.topics.frames,
+                    why)
+        return
+    if ps.points_paired and ps.points_in_view < 0.01 * ps.points_paired:
+        ahead = ps.points_ahead / ps.points_paired
+        if ahead < 0.05:
+            why = (f"{100 * (1 - ahead):.0f} % of the LiDAR's points are behind the camera under T_cam_lidar of "
+                   f"{tinfo.calibration_source or 'the calibration'}: is it inverted (T_lidar_cam written as "
+                   f"T_cam_lidar), or does it map into the camera's body frame (x forward) instead of its "
+                   f"optical frame (z forward)?")
+        else:
+            why = (f"the points are in front of the camera but outside the image; check the intrinsics and "
+                   f"T_cam_lidar of {tinfo.calibration_source or 'the calibration'}")
+        log.warning("only %.2f %% of the LiDAR's points fell into the camera images: %s",
+                    100 * ps.points_in_view / ps.points_paired, why)

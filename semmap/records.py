@@ -87,6 +87,8 @@ class CameraIntrinsics:
     def __post_init__(self) -> None:
         object.__setattr__(self, "K", _matrix(self.K, (3, 3), "K"))
         d = np.array(self.D, dtype=np.float64).ravel()
+        if not np.all(np.isfinite(d)):
+            raise ValueError("D contains NaN or inf")
         d.setflags(write=False)
         object.__setattr__(self, "D", d)
         if self.width <= 0 or self.height <= 0:
@@ -99,6 +101,8 @@ class CameraIntrinsics:
             raise ValueError(f"pinhole distortion needs 4, 5, 8, 12 or 14 coefficients, got {d.size}")
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             raise ValueError("K must have positive focal lengths fx, fy")
+        if abs(self.K[1, 0]) > 1e-9 or not np.allclose(self.K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
+            raise ValueError("K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
 
     @property
     def fx(self) -> float:

@@ -1,48 +1,72 @@
 """Worker processes around the mapping core.
 
 * **Frames** (:class:`FrameWorker`): a process that reads the camera topic from the bag,
-  decodes the images and runs the segmenter, handing segmentations back through a
-  bounded queue. Image decoding and model inference never share a process with mapping
-  (the research separated them after segfaults in continuous CUDA runs), and a model
-  that is slower than mapping no longer adds its time to it. Raw label images recorded in
-  the bag have nothing to decode or infer: the build reads them in its own process
+  decodes the images and runs the segmenter, handing segmentations back through shared
+  memory. Image decoding and model inference never share a process with mapping (the
+  research separated them after segfaults in continuous CUDA runs), and a model that is
+  slower than mapping no longer adds its time to it. Raw label images recorded in the bag
+  have nothing to decode or infer: the build reads them in its own process
   (:class:`InProcessFrames`), where a frame is a view of the bag's bytes, not a copy.
 * **Mapping** (:class:`MapperWorkers`): two chained processes, registration then fusion;
   painted scans stream in, the trajectory and the grid layers come back at the end. With
   painting in the calling process the three stages share the machine's cores.
 
 Both have in-process twins (:class:`InProcessFrames`, :class:`InProcessMapper`) with the
-same methods, used when ``workers: false`` (debugging) and by tests. Errors in a worker
-come back as :class:`~semmap.errors.SemmapError` with the worker's one-line message.
+same methods (:class:`FrameSource`, :class:`Mapper`), used when ``workers: false``
+(debugging) and by tests.
+
+**Whatever happens to a process, nothing hangs and nothing is left behind.**
+
+* Processes talk through one-way pipes, and each end is held by one process only: a reader
+  sees end-of-file, and a writer a broken pipe, the moment the process at the other end is
+  gone, even in the middle of a message. Every wait on a worker also watches its process
+  sentinel. There are no queues with feeder threads to flush at exit, and no semaphores.
+* A worker that dies becomes one :class:`~semmap.errors.WorkerError` naming its stage and how
+  it ended (``killed by SIGKILL``: the out-of-memory killer); a worker's bug becomes an
+  :class:`~semmap.errors.InternalError` carrying the worker's traceback; a worker's
+  :class:`~semmap.errors.SemmapError` is raised again as itself.
+* Workers ignore SIGINT, SIGTERM and SIGHUP (Ctrl-C, a closed terminal or systemd reach the
+  whole process group; the caller decides and stops them), die with their parent on Linux
+  (``PR_SET_PDEATHSIG``), and are named in ``ps``/``top`` (``semmap-frames``,
+  ``semmap-register``, ``semmap-fusion``).
+* ``close`` kills the workers, joins them, closes the pipes and unlinks the shared memory,
+  with SIGINT, SIGTERM and SIGHUP held back until it is done.
+* Log records of the workers are sent to the caller and logged there, at the caller's levels.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import multiprocessing as mp
 import os
-import queue
+import signal
 import sys
 import time
+import traceback
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .config import GridConfig, RegistrationConfig, SegmentationConfig
-from .errors import SemmapError
+from .errors import InternalError, SemmapError, WorkerError
 from .records import Segmentation
 
-__all__ = ["InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers", "MapperResult"]
+__all__ = ["FrameSource", "Mapper", "InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
+           "MapperResult", "signals_held"]
 
 log = logging.getLogger(__name__)
 
-_POLL_S = 0.2
+_PIPE_BYTES = 1 << 20  # scans in flight between the mapping stages (Linux; elsewhere the system's pipe size)
+_REPORT_S = 3.0  # after a failure, how long the other workers get to report theirs
+_STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
 
 
 def peak_rss_mb() -> float:
@@ -52,67 +76,349 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP back while the block runs (clean-up, an atomic rename);
+    one that arrives meanwhile is delivered when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+# ---------------------------------------------------------------------------------------
+# Process plumbing
+
+
 def _context() -> Any:
     """Workers are spawned: forking a process that runs other threads (a GUI, a test runner,
     a logging handler) can deadlock the child."""
     return mp.get_context("spawn")
 
 
-def _start(procs: list[Any]) -> None:
-    """Start spawned workers without making them re-import the caller's main script.
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (it unlinks shared memory a killed process leaves)
+    with the stop signals held: it inherits them blocked, so a SIGHUP to the whole process group
+    (a closed terminal) does not kill it before the build has cleaned up. It ignores SIGINT and
+    SIGTERM itself, and ends when the last process using it has."""
+    from multiprocessing import resource_tracker
 
-    multiprocessing's spawn re-runs the ``__main__`` module in every child, so a script that
-    calls :func:`semmap.build` at top level, without an ``if __name__ == "__main__":`` guard,
-    would build again inside each worker. The workers need nothing from ``__main__``: it is
-    hidden while they start.
-    """
-    main = sys.modules.get("__main__")
-    sys.modules["__main__"] = types.ModuleType("__main__")
+    with signals_held():
+        resource_tracker.ensure_running()
+
+
+def _prctl(option: int, arg: int | bytes) -> bool:
+    """Linux's prctl(2); False where there is none."""
+    if not sys.platform.startswith("linux"):
+        return False
     try:
-        for p in procs:
-            p.start()
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(option, arg, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def _widen(conn: Connection) -> None:
+    """Let a pipe hold more in flight than the default 64 kB (Linux's F_SETPIPE_SZ)."""
+    try:
+        import fcntl
+
+        fcntl.fcntl(conn.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), _PIPE_BYTES)
+    except (ImportError, OSError):
+        pass
+
+
+def _death(stage: str, exitcode: int | None) -> WorkerError:
+    """The error for a worker that ended without its result."""
+    if exitcode is None:
+        return WorkerError(f"the {stage} worker stopped answering")
+    if exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        why = {"SIGKILL": " (the kernel's out-of-memory killer sends it; is the machine short of memory?)",
+               "SIGSEGV": " (it crashed in native code)", "SIGBUS": " (it crashed in native code)",
+               "SIGABRT": " (it aborted)", "SIGILL": " (it crashed in native code)"}.get(name, "")
+        return WorkerError(f"the {stage} worker was killed by {name}{why}")
+    return WorkerError(f"the {stage} worker exited with code {exitcode} before it finished")
+
+
+class _RemoteTraceback(Exception):
+    """A worker's formatted traceback, shown as the cause of :class:`InternalError`."""
+
+    def __init__(self, tb: str) -> None:
+        super().__init__(tb)
+        self.tb = tb
+
+    def __str__(self) -> str:
+        return f"\n\n(in the worker process)\n{self.tb}"
+
+
+def _raise_reported(stage: str, kind: str, name: str, message: str, tb: str) -> None:
+    """Raise what a worker reported (``("error", kind, name, message, tb)``)."""
+    from . import errors
+
+    if kind == "user":
+        cls = getattr(errors, name, None)
+        raise (cls if isinstance(cls, type) and issubclass(cls, SemmapError) else SemmapError)(message)
+    if kind == "memory":
+        raise WorkerError(f"the {stage} worker ran out of memory{': ' + message if message else ''}")
+    exc = InternalError(f"in the {stage} worker: {name}: {message}")
+    raise exc from _RemoteTraceback(tb)
+
+
+class _PipeLogHandler(logging.Handler):
+    """In a worker: log records travel to the caller, which logs them (with the caller's handlers)."""
+
+    def __init__(self, conn: Connection, process: str) -> None:
+        super().__init__()
+        self._conn = conn
+        self._process = process
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            if record.exc_info:
+                text += "\n" + "".join(traceback.format_exception(*record.exc_info)).rstrip()
+            self._conn.send(("log", record.name, record.levelno, text, self._process))
+        except Exception:  # noqa: BLE001 - a log record must never take a worker down
+            pass
+
+
+def _emit(name: str, level: int, text: str, process: str) -> None:
+    """In the caller: log a record a worker sent."""
+    logger = logging.getLogger(name)
+    if logger.isEnabledFor(level):
+        logger.handle(logger.makeRecord(name, level, "(worker)", 0, text, None, None, extra={"worker": process}))
+
+
+def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, int], out: Connection,
+                 body: Callable[..., None], *args: Any) -> None:
+    """Every worker starts here: set the process up, run ``body(out, *args)``, report how it ended."""
+    for sig in _STOP_SIGNALS:  # Ctrl-C, a closed terminal, systemd reach the whole group: the parent stops us
+        signal.signal(sig, signal.SIG_IGN)
+    _prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: die with the parent, however it ends
+    if os.getppid() != parent_pid:  # the parent was already gone
+        os._exit(0)
+    _prctl(15, process.encode()[:15])  # PR_SET_NAME: ps, top and htop show the stage
+    root = logging.getLogger()
+    root.handlers[:] = [_PipeLogHandler(out, process)]
+    for name, level in levels.items():
+        logging.getLogger(name or None).setLevel(level)
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)  # workers share the machine's cores with each other
+        body(out, *args)
+    except (BrokenPipeError, EOFError, ConnectionResetError):
+        # the process at the other end of a pipe is gone: whoever waits on us learns why from it
+        with contextlib.suppress(OSError):
+            out.send(("error", "peer", "", "a pipe to another process closed", ""))
+    except SemmapError as exc:
+        with contextlib.suppress(OSError):
+            out.send(("error", "user", type(exc).__name__, str(exc), ""))
+    except MemoryError as exc:
+        with contextlib.suppress(OSError):
+            out.send(("error", "memory", "MemoryError", str(exc), ""))
+    except BaseException as exc:  # noqa: BLE001 - a bug: report it with its traceback
+        with contextlib.suppress(OSError):
+            out.send(("error", "bug", type(exc).__name__, str(exc), traceback.format_exc()))
     finally:
-        if main is not None:
-            sys.modules["__main__"] = main
+        out.close()
 
 
-class _Parent:
-    """Lets a worker notice that the process that started it has gone (killed, crashed)."""
+@dataclass
+class _Worker:
+    stage: str  # "frames", "registration", "fusion": the stage errors name
+    proc: Any
+    inbox: Connection  # what the worker sends the caller
+    error: tuple[str, str, str, str] | None = None  # what it reported, if it failed
+    closed: bool = False  # it closed its end: it has ended or is ending
+    results: list[Any] = field(default_factory=list)  # messages that arrived while checking on it
+
+    def _take(self) -> Any:
+        """Read one message (the caller knows one is there, or waits for it). Log records are logged
+        and give None; an error report raises; end of file raises :class:`_PeerGone`."""
+        try:
+            msg = self.inbox.recv()
+        except (EOFError, OSError):
+            self.closed = True
+            raise _PeerGone from None
+        if msg[0] == "log":
+            _emit(*msg[1:])
+            return None
+        if msg[0] == "error":
+            self.error = msg[1:]
+            if msg[1] != "peer":
+                _raise_reported(self.stage, *msg[1:])
+            raise _PeerGone
+        return msg
+
+    def poll(self) -> None:
+        """Take whatever the worker has sent so far, without waiting."""
+        while not self.closed and self.inbox.poll():
+            msg = self._take()
+            if msg is not None:
+                self.results.append(msg)
+
+    def recv(self) -> Any:
+        """The worker's next message (not a log record); end of file or the process's end raise
+        :class:`_PeerGone`."""
+        if self.results:
+            return self.results.pop(0)
+        while True:
+            if self.inbox not in wait([self.inbox, self.proc.sentinel]):
+                raise _PeerGone
+            msg = self._take()
+            if msg is not None:
+                return msg
+
+    def failed(self) -> bool:
+        """It reported an error of its own, or ended without its result."""
+        if self.error is not None:
+            return self.error[0] != "peer"
+        if self.closed:
+            self.proc.join(0.5)
+        return not self.proc.is_alive() and self.proc.exitcode != 0
+
+
+class _PeerGone(Exception):
+    """A pipe to a worker closed, or a worker ended: :meth:`_Workers.failure` says which and why."""
+
+
+class _Workers:
+    """Worker processes started together and stopped together."""
 
     def __init__(self) -> None:
-        self._ppid = os.getppid()
+        self._ctx = _context()
+        self.workers: list[_Worker] = []
+        self._child_ends: list[Connection] = []  # pipe ends the workers hold: closed here once they start
+        self._own: list[Connection] = []
 
-    @property
-    def alive(self) -> bool:
-        return os.getppid() == self._ppid
+    def pipe(self, to_child: bool | None, wide: bool = False) -> tuple[Connection, Connection]:
+        """A one-way pipe ``(reader, writer)``. ``to_child``: this process writes (True), reads (False),
+        or neither (None: between two workers)."""
+        reader, writer = self._ctx.Pipe(duplex=False)
+        if wide:
+            _widen(writer)
+        self._child_ends += [reader] if to_child else [writer] if to_child is False else [reader, writer]
+        self._own += [writer] if to_child else [reader] if to_child is False else []
+        return reader, writer
 
-    def get(self, q: Any) -> Any:
-        while True:
+    def add(self, process: str, stage: str, body: Callable[..., None], *args: Any) -> _Worker:
+        inbox, out = self.pipe(to_child=False)
+        levels = {name: logging.getLogger(name or None).getEffectiveLevel() for name in ("", "semmap")}
+        proc = self._ctx.Process(target=_worker_main, name=process, daemon=True,
+                                 args=(process, stage, os.getpid(), levels, out, body, *args))
+        w = _Worker(stage, proc, inbox)
+        self.workers.append(w)
+        return w
+
+    def start(self) -> None:
+        """Start the workers without making them re-import the caller's main script.
+
+        multiprocessing's spawn re-runs the ``__main__`` module in every child, so a script that
+        calls :func:`semmap.build` at top level, without an ``if __name__ == "__main__":`` guard,
+        would build again inside each worker. The workers need nothing from ``__main__``: it is
+        hidden while they start.
+        """
+        _start_resource_tracker()
+        main = sys.modules.get("__main__")
+        sys.modules["__main__"] = types.ModuleType("__main__")
+        try:
+            for w in self.workers:
+                w.proc.start()
+        finally:
+            if main is not None:
+                sys.modules["__main__"] = main
+            for c in self._child_ends:  # only the worker holds its end now
+                c.close()
+            self._child_ends.clear()
+
+    def check(self) -> None:
+        """Raise if a worker has failed or ended; take its log records meanwhile."""
+        for w in self.workers:
             try:
-                return q.get(timeout=1.0)
-            except queue.Empty:
-                if not self.alive:
-                    raise SystemExit(0) from None
+                w.poll()
+            except _PeerGone:
+                raise self.failure() from None
+            if w.failed():
+                raise self.failure()
 
-    def put(self, q: Any, item: Any) -> None:
+    def failure(self) -> SemmapError | InternalError:
+        """Why the workers failed: the first worker in the chain that reported an error or ended
+        without its result, not those that only saw their pipe to it close. Waits a moment for
+        the workers' reports."""
+        deadline = time.monotonic() + _REPORT_S
         while True:
+            for w in self.workers:
+                with contextlib.suppress(_PeerGone, SemmapError, InternalError):
+                    w.poll()
+            culprit = next((w for w in self.workers if w.failed()), None)
+            left = deadline - time.monotonic()
+            if culprit is not None or left <= 0 or not any(w.proc.is_alive() for w in self.workers):
+                break
+            wait([x for w in self.workers if not w.closed for x in (w.inbox, w.proc.sentinel)] or
+                 [w.proc.sentinel for w in self.workers], min(left, 0.1))
+        if culprit is None:
+            culprit = next((w for w in self.workers if w.error is None and not w.proc.is_alive()), self.workers[0])
+        if culprit.error is not None and culprit.error[0] != "peer":
             try:
-                q.put(item, timeout=1.0)
-                return
-            except queue.Full:
-                if not self.alive:
-                    raise SystemExit(0) from None
+                _raise_reported(culprit.stage, *culprit.error)
+            except (SemmapError, InternalError) as exc:
+                return exc
+        return _death(culprit.stage, culprit.proc.exitcode)
+
+    def recv(self, w: _Worker) -> Any:
+        try:
+            return w.recv()
+        except _PeerGone:
+            raise self.failure() from None
+
+    def close(self) -> None:
+        """Stop every worker and close every pipe; SIGINT and SIGTERM wait until this is done.
+        A worker holds nothing that needs its own clean-up, so it is killed, not asked."""
+        with signals_held():
+            for w in self.workers:
+                if w.proc.pid is not None and w.proc.is_alive():
+                    w.proc.kill()
+            for w in self.workers:
+                if w.proc.pid is not None:
+                    w.proc.join()
+            for c in [*self._own, *self._child_ends]:
+                c.close()
 
 
-def _single_threaded() -> None:
-    """Workers share the machine's cores with each other: no library thread pools of their own."""
-    import cv2
+# ---------------------------------------------------------------------------------------
+# Frames: decoding and segmentation
 
-    cv2.setNumThreads(1)
 _COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
 
 
-class _FrameSource:
+class FrameSource(Protocol):
+    """Segmentations of the camera topic, one per frame, in bag order."""
+
+    counts: dict[str, Any]
+
+    def wait_ready(self) -> None:
+        """Block until the segmenter is loaded (start-up is not counted as work)."""
+
+    def next(self) -> Segmentation | None:
+        """The next segmentation; None after the last."""
+
+    def release(self, seg: Segmentation) -> None:
+        """The caller no longer needs ``seg`` (its memory may be reused)."""
+
+    def close(self) -> None:
+        """Stop, and free what was held."""
+
+
+class _Frames:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
     here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
 
@@ -161,8 +467,8 @@ class InProcessFrames:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
     def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
-        self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._source = _FrameSource(bag, topic, msgtype, seg_cfg, self.counts)
+        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self._source = _Frames(bag, topic, msgtype, seg_cfg, self.counts)
         self._it = iter(self._source)
 
     def next(self) -> Segmentation | None:
@@ -178,150 +484,123 @@ class InProcessFrames:
         self._source.close()
 
 
-def _frame_worker_main(bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any], out: Any,
-                       shm_name: str | None, shape: tuple[int, int] | None, free_slots: Any) -> None:
+def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any],
+                 shm_name: str | None, shape: tuple[int, int] | None) -> None:
+    """The frame worker: segment every frame of ``topic``; labels go into free shared-memory slots
+    (the caller hands each back on ``freed``), or through the pipe when none is free."""
     from multiprocessing import shared_memory
 
-    counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-    parent = _Parent()
+    counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
-    frames: _FrameSource | None = None
-    _single_threaded()
+    frames: _Frames | None = None
     try:
         slots = None
+        free: list[int] = []
         if shm is not None and shape is not None:
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
-        cfg = SegmentationConfig.model_validate(seg_cfg)
-        frames = _FrameSource(Path(bag), topic, msgtype, cfg, counts)
-        parent.put(out, ("ready",))
+            free = list(range(n))
+        frames = _Frames(Path(bag), topic, msgtype, SegmentationConfig.model_validate(seg_cfg), counts)
+        out.send(("ready",))
         cpu0 = time.process_time()
         for seg in frames:
-            if slots is not None and seg.label.shape == slots.shape[1:]:
-                i = parent.get(free_slots)  # blocks while the mapper holds every slot: back-pressure
+            while freed.poll():  # EOF here (the caller is gone) raises EOFError
+                free.append(freed.recv())
+            if slots is not None and seg.label.shape == slots.shape[1:] and free:
+                i = free.pop()
                 slots[i] = seg.label
-                parent.put(out, ("slot", seg.stamp_ns, i, seg.names, seg.confidence))
-            else:  # an image of another size: send it whole (the painter will reject it)
-                parent.put(out, ("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names,
-                                 seg.confidence))
+                out.send(("slot", seg.stamp_ns, i, seg.names))
+            else:  # no free slot (the caller holds them all), or an image of another size: send it whole
+                out.send(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names))
         counts["peak_rss_mb"] = round(peak_rss_mb(), 1)
         counts["cpu_s"] = round(time.process_time() - cpu0, 3)
-        parent.put(out, ("done", counts))
-    except SemmapError as exc:
-        out.put(("error", type(exc).__name__, str(exc)))
-    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
-        out.put(("error", type(exc).__name__, f"frame worker failed: {type(exc).__name__}: {exc}"))
+        out.send(("done", counts))
     finally:
         if frames is not None:
             frames.close()
         if shm is not None:
+            del slots
             shm.close()
-
-
-def _raise(kind: str, message: str) -> None:
-    from . import errors
-
-    cls = getattr(errors, kind, None)
-    if isinstance(cls, type) and issubclass(cls, SemmapError):
-        raise cls(message)
-    raise SemmapError(message)
 
 
 class FrameWorker:
     """Segmentations of a camera topic from a worker process.
 
-    Label images travel through shared memory: a pool of ``n_slots`` image slots, each
-    handed back to the worker when the mapper no longer needs that frame
-    (:meth:`release`), so nothing large is copied between processes and the worker runs
-    at most ``n_slots`` frames ahead.
+    Label images travel through shared memory: a pool of ``n_slots`` image slots, each handed
+    back to the worker when the mapper no longer needs that frame (:meth:`release`), so nothing
+    large is copied between processes. When the caller holds every slot, the worker sends the
+    next label through the pipe instead of waiting (a fast camera never deadlocks the two); the
+    pipe's capacity bounds how far it runs ahead.
     """
 
     def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
-                 shape: tuple[int, int] | None = None, n_slots: int = 12, queue_size: int = 16) -> None:
+                 shape: tuple[int, int] | None = None, n_slots: int = 12) -> None:
         from multiprocessing import shared_memory
 
-        ctx = _context()
-        self._queue = ctx.Queue(maxsize=queue_size)
-        self._free = ctx.Queue(maxsize=n_slots)
+        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self._done = False
+        self._slot_of: dict[int, int] = {}
         self._shm = None
         self._slots: NDArray[np.uint16] | None = None
-        if shape is not None:
-            self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
-            self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
-            for i in range(n_slots):
-                self._free.put(i)
-        self._slot_of: dict[int, int] = {}
-        self._proc = ctx.Process(target=_frame_worker_main, name="semmap-frames", daemon=True,
-                                 args=(str(bag), topic, msgtype, seg_cfg.model_dump(mode="json"), self._queue,
-                                       self._shm.name if self._shm else None, shape, self._free))
-        _start([self._proc])
-        self.counts = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._done = False
-
-    def next(self) -> Segmentation | None:
-        while not self._done:
-            try:
-                item = self._queue.get(timeout=_POLL_S)
-            except queue.Empty:
-                if not self._proc.is_alive():
-                    self._done = True
-                    raise SemmapError(
-                        f"the frame worker stopped unexpectedly (exit code {self._proc.exitcode})") from None
-                continue
-            if item[0] == "ready":
-                continue
-            if item[0] == "slot":
-                _, stamp, i, names, conf = item
-                assert self._slots is not None
-                seg = Segmentation(stamp, self._slots[i], names, conf)  # a read-only view, no copy
-                self._slot_of[id(seg)] = i
-                return seg
-            if item[0] == "frame":
-                _, stamp, label, names, conf = item
-                return Segmentation(stamp, label, names, conf)
-            if item[0] == "done":
-                self.counts = item[1]
-                self._done = True
-                return None
-            self._done = True
-            _raise(item[1], item[2])
-        return None
+        self._group = _Workers()
+        try:
+            if shape is not None:
+                _start_resource_tracker()
+                self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
+                self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
+            freed_r, self._freed = self._group.pipe(to_child=True)
+            self._worker = self._group.add("semmap-frames", "frames", _frames_body, freed_r, str(bag), topic, msgtype,
+                                           seg_cfg.model_dump(mode="json"), self._shm.name if self._shm else None,
+                                           shape)
+            self._group.start()
+        except BaseException:
+            self.close()
+            raise
 
     def wait_ready(self) -> None:
         """Block until the worker has loaded its segmenter (so start-up is not counted as work)."""
-        while True:
-            try:
-                item = self._queue.get(timeout=_POLL_S)
-            except queue.Empty:
-                if not self._proc.is_alive():
-                    raise SemmapError(f"the frame worker stopped while starting (exit code {self._proc.exitcode})"
-                                      ) from None
-                continue
-            if item[0] == "ready":
-                return
-            if item[0] == "error":
-                self._done = True
-                _raise(item[1], item[2])
-            raise SemmapError(f"the frame worker sent {item[0]!r} before 'ready'")
+        msg = self._group.recv(self._worker)
+        if msg[0] != "ready":
+            raise InternalError(f"the frames worker sent {msg[0]!r} before 'ready'")
+
+    def next(self) -> Segmentation | None:
+        if self._done:
+            return None
+        msg = self._group.recv(self._worker)
+        if msg[0] == "slot":
+            _, stamp, i, names = msg
+            assert self._slots is not None
+            seg = Segmentation(stamp, self._slots[i], names)  # a read-only view, no copy
+            self._slot_of[id(seg)] = i
+            return seg
+        if msg[0] == "frame":
+            _, stamp, label, names = msg
+            return Segmentation(stamp, label, names)
+        if msg[0] == "done":
+            self.counts = msg[1]
+            self._done = True
+            return None
+        raise InternalError(f"the frames worker sent {msg[0]!r}")
 
     def release(self, seg: Segmentation) -> None:
         """The mapper is done with ``seg``: its slot may be reused."""
         i = self._slot_of.pop(id(seg), None)
         if i is not None:
-            self._free.put(i)
+            try:
+                self._freed.send(i)
+            except OSError:  # the worker is gone; the next read says why
+                pass
 
     def close(self) -> None:
-        if self._proc.is_alive():
-            self._proc.terminate()
-        self._proc.join(timeout=5)
-        self._queue.close()
-        self._free.close()
-        self._slot_of.clear()
-        self._slots = None
-        if self._shm is not None:
-            self._shm.close()
-            self._shm.unlink()
-            self._shm = None
+        with signals_held():
+            self._group.close()
+            self._slot_of.clear()
+            self._slots = None
+            if self._shm is not None:
+                with contextlib.suppress(BufferError):  # segmentations still held are views of it
+                    self._shm.close()
+                self._shm.unlink()
+                self._shm = None
 
 
 # ---------------------------------------------------------------------------------------
@@ -339,6 +618,22 @@ class MapperResult:
     fuse_busy_s: float
     peak_rss_mb: dict[str, float] = field(default_factory=dict)  # per worker process
     cpu_s: dict[str, float] = field(default_factory=dict)  # CPU time of each worker process after start-up
+
+
+class Mapper(Protocol):
+    """Registration and fusion: painted scans in, poses and grid layers out."""
+
+    def wait_ready(self) -> None:
+        """Block until the stages have loaded their libraries."""
+
+    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+        """Register and fuse one painted scan (with the odometry pose at its stamp, if any)."""
+
+    def finish(self) -> MapperResult:
+        """Every scan pushed so far registered and fused: the trajectory and the grid."""
+
+    def close(self) -> None:
+        """Stop, and free what was held."""
 
 
 class InProcessMapper:
@@ -373,85 +668,67 @@ class InProcessMapper:
         pass
 
 
-def _registration_worker_main(cfg: dict[str, Any], inbox: Any, fusion_inbox: Any, outbox: Any) -> None:
-    _single_threaded()
-    try:
-        from .register import Registrar
+def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection, cfg: dict[str, Any]) -> None:
+    from .register import Registrar
 
-        parent = _Parent()
-        registrar = Registrar(RegistrationConfig.model_validate(cfg))
-        outbox.put(("ready",))
-        cpu0 = time.process_time()
-        poses: list[NDArray[np.float64]] = []
-        busy = 0.0
-        while True:
-            batch = parent.get(inbox)
-            if batch is None:
-                break
-            t0 = time.perf_counter()
-            out = []
-            for painted, odom_pose, prepared in batch:
-                pose = registrar.register(painted, odom_pose, prepared)
-                poses.append(pose)
-                out.append((pose, painted))
-            busy += time.perf_counter() - t0
-            parent.put(fusion_inbox, out)
-        parent.put(fusion_inbox, None)
-        outbox.put(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy,
-                    peak_rss_mb(), time.process_time() - cpu0))
-    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
-        fusion_inbox.put(None)
-        outbox.put(("error", type(exc).__name__, f"registration worker failed: {type(exc).__name__}: {exc}"))
+    registrar = Registrar(RegistrationConfig.model_validate(cfg))
+    out.send(("ready",))
+    cpu0 = time.process_time()
+    poses: list[NDArray[np.float64]] = []
+    busy = 0.0
+    while (batch := inbox.recv()) is not None:
+        t0 = time.perf_counter()
+        done = []
+        for painted, odom_pose, prepared in batch:
+            pose = registrar.register(painted, odom_pose, prepared)
+            poses.append(pose)
+            done.append((pose, painted))
+        busy += time.perf_counter() - t0
+        to_fusion.send(done)
+    to_fusion.send(None)
+    out.send(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy, peak_rss_mb(),
+              time.process_time() - cpu0))
 
 
-def _fusion_worker_main(cfg: dict[str, Any], class_names: tuple[str, ...], inbox: Any, outbox: Any) -> None:
-    _single_threaded()
-    # fusion may fall behind (its queue is bounded); registration is the critical path
+def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...]) -> None:
+    # fusion may fall behind (its pipe is bounded); registration is the critical path
     with contextlib.suppress(OSError):
         os.nice(5)
-    try:
-        from .grid import SemanticGrid
+    from .grid import SemanticGrid
 
-        parent = _Parent()
-        grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
-        outbox.put(("ready",))
-        cpu0 = time.process_time()
-        busy = 0.0
-        while True:
-            batch = parent.get(inbox)
-            if batch is None:
-                break
-            t0 = time.perf_counter()
-            for pose, painted in batch:
-                grid.integrate(pose, painted)
-            busy += time.perf_counter() - t0
-        outbox.put(("layers", grid.layers(), busy, peak_rss_mb(), time.process_time() - cpu0))
-    except Exception as exc:  # noqa: BLE001 - report any failure instead of dying silently
-        outbox.put(("error", type(exc).__name__, f"fusion worker failed: {type(exc).__name__}: {exc}"))
+    grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
+    out.send(("ready",))
+    cpu0 = time.process_time()
+    busy = 0.0
+    while (batch := inbox.recv()) is not None:
+        t0 = time.perf_counter()
+        for pose, painted in batch:
+            grid.integrate(pose, painted)
+        busy += time.perf_counter() - t0
+    out.send(("layers", grid.layers(), busy, peak_rss_mb(), time.process_time() - cpu0))
 
 
 class MapperWorkers:
     """Registration and fusion in two chained worker processes; scans travel in small batches.
 
-    Painting stays in the calling process, registration runs one scan behind it and fusion
+    Painting stays in the calling process, registration runs one batch behind it and fusion
     one batch behind registration, so the three share the machine's cores.
     """
 
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
-                 batch: int = 16, queue_size: int = 8) -> None:
-        ctx = _context()
-        self._to_reg = ctx.Queue(maxsize=queue_size)
-        to_fuse = ctx.Queue(maxsize=queue_size)
-        self._from_reg = ctx.Queue(maxsize=1)
-        self._from_fuse = ctx.Queue(maxsize=1)
-        self._procs = [
-            ctx.Process(target=_registration_worker_main, name="semmap-register", daemon=True,
-                        args=(reg_cfg.model_dump(mode="json"), self._to_reg, to_fuse, self._from_reg)),
-            ctx.Process(target=_fusion_worker_main, name="semmap-fusion", daemon=True,
-                        args=(grid_cfg.model_dump(mode="json"), tuple(class_names), to_fuse, self._from_fuse)),
-        ]
-        self._queues = [self._to_reg, to_fuse, self._from_reg, self._from_fuse]
-        _start(self._procs)
+                 batch: int = 16) -> None:
+        self._group = _Workers()
+        try:
+            scans_r, self._scans = self._group.pipe(to_child=True, wide=True)
+            fuse_r, fuse_w = self._group.pipe(to_child=None, wide=True)
+            self._reg = self._group.add("semmap-register", "registration", _registration_body, scans_r, fuse_w,
+                                        reg_cfg.model_dump(mode="json"))
+            self._fuse = self._group.add("semmap-fusion", "fusion", _fusion_body, fuse_r,
+                                         grid_cfg.model_dump(mode="json"), tuple(class_names))
+            self._group.start()
+        except BaseException:
+            self._group.close()
+            raise
         self._batch: list[tuple[Any, NDArray[np.float64] | None, Any]] = []
         self._batch_size = batch
         # the stateless down-sampling runs here, beside the painter, to unload the registration worker
@@ -463,61 +740,40 @@ class MapperWorkers:
 
     def wait_ready(self) -> None:
         """Block until both workers have loaded their libraries (start-up is not counted as work)."""
-        for box in (self._from_reg, self._from_fuse):
-            self._get(box)
+        for w in (self._reg, self._fuse):
+            msg = self._group.recv(w)
+            if msg[0] != "ready":
+                raise InternalError(f"the {w.stage} worker sent {msg[0]!r} before 'ready'")
 
-    def _alive_or_raise(self) -> None:
-        for p in self._procs:
-            if not p.is_alive():
-                for box in (self._from_reg, self._from_fuse):  # a worker that failed left a message
-                    try:
-                        item = box.get_nowait()
-                    except queue.Empty:
-                        continue
-                    if item[0] == "error":
-                        _raise(item[1], item[2])
-                raise SemmapError(f"the {p.name} worker stopped unexpectedly (exit code {p.exitcode})")
-
-    def _put(self, item: Any) -> None:
-        while True:
-            try:
-                self._to_reg.put(item, timeout=_POLL_S)
-                return
-            except queue.Full:
-                self._alive_or_raise()
+    def _send(self, item: Any) -> None:
+        try:
+            self._scans.send(item)
+        except (BrokenPipeError, ConnectionResetError):
+            raise self._group.failure() from None
+        self._group.check()
 
     def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
         self._batch.append((painted, odom_pose, None if self._preparer is None else self._preparer.prepare(painted)))
         if len(self._batch) >= self._batch_size:
-            self._put(self._batch)
+            self._send(self._batch)
             self._batch = []
-
-    def _get(self, box: Any) -> Any:
-        while True:
-            try:
-                item = box.get(timeout=_POLL_S)
-            except queue.Empty:
-                self._alive_or_raise()
-                continue
-            if item[0] == "error":
-                _raise(item[1], item[2])
-            return item
 
     def finish(self) -> MapperResult:
         if self._batch:
-            self._put(self._batch)
+            self._send(self._batch)
             self._batch = []
-        self._put(None)
-        _, poses, stats, reg_busy, reg_rss, reg_cpu = self._get(self._from_reg)
-        _, layers, fuse_busy, fuse_rss, fuse_cpu = self._get(self._from_fuse)
+        self._send(None)
+        _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses")
+        _, layers, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "layers")
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)})
 
+    def _expect(self, w: _Worker, tag: str) -> Any:
+        msg = self._group.recv(w)
+        if msg[0] != tag:
+            raise InternalError(f"the {w.stage} worker sent {msg[0]!r}, not {tag!r}")
+        return msg
+
     def close(self) -> None:
-        for p in self._procs:
-            if p.is_alive():
-                p.terminate()
-            p.join(timeout=5)
-        for q in self._queues:
-            q.close()
+        self._group.close()

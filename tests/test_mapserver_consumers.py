@@ -8,8 +8,8 @@ import json
 
 import numpy as np
 import pytest
-
 from mapserver_loaders import RULES, load
+
 from semmap.io.mapserver import FREE_THRESH, OCCUPIED_THRESH, check_trinary_thresholds, read_map, write_map
 from semmap.pipeline import build
 from semmap.records import GridSpec

@@ -135,6 +135,30 @@ def test_segment_a_bag_then_build_from_the_label_folder(ros1_tour, tmp_path, cap
     assert folder.summary["painting"]["hits_by_class"] == ref.summary["painting"]["hits_by_class"]
 
 
+def test_segment_limit_counts_every_image_tried_and_repeated_warnings_are_counted(ros1_tour, tmp_path, caplog):
+    """A label folder that covers 2 of 40 frames: --limit 10 tries 10 images, not the whole bag; three
+    warnings name the first skipped images and one counts them all; summary.json has the reasons."""
+    import shutil
+
+    full = tmp_path / "full"
+    assert main(["segment", str(ros1_tour.out), "--backend", "topic", "--out", str(full), "--no-overlays",
+                 "-q"]) == 0
+    few = tmp_path / "few"
+    few.mkdir()
+    for png in sorted((full / "labels").glob("*.png"))[:2]:
+        shutil.copy(png, few)
+    shutil.copy(full / "classes.json", few)
+    caplog.clear()
+    out = tmp_path / "seg"
+    assert main(["segment", str(ros1_tour.out), "--backend", "folder", "--folder", str(few), "--out", str(out),
+                 "--limit", "10", "-q"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 2 and summary["bad_frames"] == 8
+    assert summary["skipped_because"] == {f"{few}: no label image for stamp N": 8}
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 4 and "8 images skipped in all" in warnings[-1]
+
+
 def test_build_runs_a_model_backend_in_its_worker_and_a_rebuild_uses_the_cache(ros1_tour, semantic_onnx, tmp_path):
     from semmap.pipeline import build
 

@@ -243,12 +243,19 @@ def check_calibration(
     out: str | Path | None = None,
     range_limits: tuple[float, float] | None = None,
     title: str | None = None,
+    force: bool = False,
 ) -> CheckResult:
     """Draw a scan projected into its image with ``calibration``; write it to ``out`` if given.
 
     Give either ``image`` and ``scan`` (files or arrays) or ``bag`` and ``time_s`` (seconds
-    after the bag's start; default: the middle of the bag).
+    after the bag's start; default: the middle of the bag). An existing ``out`` is replaced
+    only with ``force``; that is checked before any work.
     """
+    from ..io.atomic import atomic_file, check_output_file
+
+    inputs = [x for x in (image, scan, bag) if isinstance(x, str | Path)]
+    if out is not None:
+        check_output_file(out, force, inputs, "picture")  # before the work
     img_stamp = scan_stamp = None
     if bag is not None:
         if image is not None or scan is not None:
@@ -267,8 +274,9 @@ def check_calibration(
     out_path = None
     if out is not None:
         out_path = Path(out)
-        if not cv2.imwrite(str(out_path), picture):
-            raise ConfigError(f"{out_path}: cannot write the picture (unknown extension or unwritable folder)")
+        with atomic_file(out_path, force, inputs, "picture") as tmp:
+            if not cv2.imwrite(str(tmp), picture):
+                raise ConfigError(f"{out_path}: cannot write the picture (unknown extension?)")
     if n_in == 0:
         log.warning("no scan point lands in the image: is T_cam_lidar inverted (T_lidar_cam given)?")
     return CheckResult(picture, len(pts), n_in, img_stamp, scan_stamp, out_path)

@@ -122,7 +122,7 @@ def calibrate_intrinsics(
         det = detect_board(img, spec)
         if det is None or len(det) < spec.min_points:
             skipped.append((name, f"board {spec} not found"))
-            log.warning("%s: board %s not found; skipped", name, spec)
+            log.info("%s: board %s not found; skipped", name, spec)  # counted in the result
             continue
         names.append(name)
         dets.append(det)

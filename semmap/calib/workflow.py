@@ -197,7 +197,7 @@ def target_observations(
         det = detect_board(img, spec)
         if det is None:
             skipped.append((im.name, f"board {spec} not found in the image"))
-            log.warning("%s: board %s not found; skipped", im.name, spec)
+            log.info("%s: board %s not found; skipped", im.name, spec)  # counted in the result
             continue
         dets.append(det)
         planes.append(board_plane(det, intrinsics))

@@ -57,6 +57,8 @@ def _build(args: argparse.Namespace, tour: Path):  # noqa: ANN202
 
 
 def _print_summary(result) -> None:  # noqa: ANN001
+    from ..mapfolder.report import registration_line
+
     s = result.summary
     m, th = s["map"], s["throughput"]
     out = console()
@@ -64,8 +66,8 @@ def _print_summary(result) -> None:  # noqa: ANN001
     occ = s["painting"].get("occlusion_filter") or {}
     hidden = (f", {occ['points_relabelled']} points hidden from the camera made unknown"
               if occ.get("on") and s["painting"]["scans_painted"] else "")
-    out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image{hidden}), "
-              f"registration {s['registration']['mode']}")
+    out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image{hidden})")
+    out.print(f"  poses      {registration_line(s['registration'])}")
     out.print(f"  map        {m['size_m'][0]} m × {m['size_m'][1]} m at {m['resolution']} m: "
               f"{m['occupied_cells']} occupied, {m['semi_static_cells']} semi-static, "
               f"{m['dynamic_cells_removed']} dynamic removed, {m['semi_static_objects']} movable objects")
@@ -73,3 +75,5 @@ def _print_summary(result) -> None:  # noqa: ANN001
     out.print(f"  to look at {result.out / 'semantic.png'}, {result.out / 'report.md'}")
     out.print(f"  speed      {th['scans_per_s']} scans/s ({th['real_time_factor']}× real time), "
               f"took {result.elapsed_s:.1f} s")
+    if s.get("warnings"):
+        out.print(f"  warnings   {len(s['warnings'])}, listed in {result.out / 'report.md'}")

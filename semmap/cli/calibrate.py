@@ -95,6 +95,7 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
     c.add_argument("--range", nargs=2, type=float, metavar=("MIN", "MAX"), default=None,
                    help="colour scale in metres (default: from the points seen)")
     c.add_argument("--out", type=Path, required=True, metavar="PNG", help="picture to write")
+    c.add_argument("--force", action="store_true", help="replace PNG if it exists")
     c.set_defaults(run=run_check)
 
 
@@ -200,7 +201,7 @@ def run_check(args: argparse.Namespace) -> int:
         title = f"{calib_path.name}  {args.image.name}"
     r = check_calibration(calib, image=args.image, scan=args.scan, bag=args.bag, time_s=args.time,
                           image_topic=args.image_topic, scan_topic=args.scan_topic, out=args.out,
-                          range_limits=tuple(args.range) if args.range else None, title=title)
+                          range_limits=tuple(args.range) if args.range else None, title=title, force=args.force)
     if args.quiet:
         return 0
     out = console()

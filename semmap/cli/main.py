@@ -7,12 +7,17 @@ exit non-zero; ``--debug`` shows the traceback of any error.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 from .. import __version__
-from ..errors import SemmapError
+from ..errors import InternalError, Interrupted, SemmapError
+from ..io.atomic import COMMITTED
 from . import build as build_cmd
 from . import calibrate as calibrate_cmd
 from . import evalseg as evalseg_cmd
@@ -22,7 +27,6 @@ from . import segment as segment_cmd
 from . import simulate as simulate_cmd
 
 EXIT_INTERNAL = 70
-EXIT_INTERRUPTED = 130
 
 COMMANDS = (build_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd, evalseg_cmd, paint_cmd)
 
@@ -46,8 +50,41 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _setup_logging(verbose: int) -> None:
+    """``-v``: semmap's info lines; ``-vv``: semmap's debug lines; ``-vvv``: every library's too.
+    Other libraries (matplotlib's font search, numba...) say only their warnings before that."""
     level = logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 else logging.DEBUG
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    root = logging.getLogger()
+    for h in [h for h in root.handlers if getattr(h, "semmap_cli", False)]:  # main() run again in one process
+        root.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    handler.semmap_cli = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(logging.DEBUG if verbose >= 3 else logging.WARNING)
+    logging.getLogger("semmap").setLevel(level)
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _stop_signals_raise() -> Iterator[None]:
+    """SIGTERM and SIGHUP (``kill``, ``timeout``, ``docker stop``, a closed terminal) raise
+    :class:`~semmap.errors.Interrupted`, as Ctrl-C raises KeyboardInterrupt, so that workers,
+    shared memory and partial output are cleaned up on the way out."""
+    names = ("SIGTERM", "SIGHUP")
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in names:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -55,25 +92,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)  # exits 2 with a usage line on bad arguments
     _setup_logging(args.verbose)
+    prog = f"semmap {args.command}"
+    n_committed = len(COMMITTED)
     try:
-        return int(args.run(args) or 0)
+        with _stop_signals_raise():
+            code = int(args.run(args) or 0)
+        return code
     except SemmapError as exc:
         if args.debug:
             raise
-        print(f"semmap {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except OSError as exc:  # unwritable output, full disk...: the message names the path
         if args.debug:
             raise
-        print(f"semmap {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"semmap {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP raised as Interrupted
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        out = getattr(args, "out", None)
+        if out is not None and Path(out).expanduser().resolve() in COMMITTED[n_committed:]:
+            # the signal came once the output was complete: the command did its job
+            print(f"{prog}: {signal.Signals(signum).name} arrived after {out} was complete", file=sys.stderr)
+            return 0
+        print(f"{prog}: {'interrupted' if signum == signal.SIGINT else 'terminated'} "
+              f"({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + int(signum)
+    except InternalError as exc:  # a bug in a worker process; its traceback is the cause
+        if args.debug:
+            raise
+        print(f"{prog}: internal error {exc} (run again with --debug for the traceback, and please report it)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
     except Exception as exc:  # noqa: BLE001 - a bug; keep the user's terminal clean unless --debug
         if args.debug:
             raise
-        print(f"semmap {args.command}: internal error: {type(exc).__name__}: {exc} "
+        print(f"{prog}: internal error: {type(exc).__name__}: {exc} "
               f"(run again with --debug for the traceback, and please report it)", file=sys.stderr)
         return EXIT_INTERNAL
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -44,9 +45,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..config import GridConfig
+from ..errors import ConfigError
 from ..records import GridSpec, Mobility, PaintedScan
 
-__all__ = ["LOG_ODDS_STEP", "N_MOBILITY", "GridLayers", "SemanticGrid"]
+__all__ = ["LOG_ODDS_STEP", "N_MOBILITY", "GridLayers", "SemanticGrid", "GridMemoryEstimate",
+           "estimate_grid_memory", "check_grid_memory"]
 
 log = logging.getLogger(__name__)
 
@@ -146,12 +149,14 @@ class SemanticGrid:
         self._ox = 0.0
         self._oy = 0.0
         # log-odds as uint16 steps above l_min: l = l_min + q * LOG_ODDS_STEP
-        self._q_zero = round(-self.cfg.l_min / LOG_ODDS_STEP)  # log-odds 0: nothing known
-        self._q_max = round((self.cfg.l_max - self.cfg.l_min) / LOG_ODDS_STEP)
+        # the clamps are rounded towards 0, so the values kept stay inside [l_min, l_max]
+        self._q_zero = math.floor(-self.cfg.l_min / LOG_ODDS_STEP + 1e-6)  # log-odds 0: nothing known
+        self._q_max = self._q_zero + math.floor(self.cfg.l_max / LOG_ODDS_STEP + 1e-6)
         if self._q_max > _U16_MAX:
             raise ValueError(f"l_max - l_min must be at most {_U16_MAX * LOG_ODDS_STEP:g}")
-        self._q_free = max(1, round(self.cfg.l_free / LOG_ODDS_STEP))
-        self._q_occ = max(1, round(self.cfg.l_occ / LOG_ODDS_STEP))
+        # a step larger than the whole range saturates all the same (and must fit the uint16 rasters)
+        self._q_free = min(max(1, round(self.cfg.l_free / LOG_ODDS_STEP)), max(self._q_max, 1))
+        self._q_occ = min(max(1, round(self.cfg.l_occ / LOG_ODDS_STEP)), max(self._q_max, 1))
         self._lo: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
         self._hits: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
         self._free: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
@@ -243,6 +248,9 @@ class SemanticGrid:
         cfg = self.cfg
         res = self.res
         pts = scan.points
+        if pts.shape[0] == 0:  # a scan without beams: nothing seen, nothing to allocate
+            self.n_scans += 1
+            return
         o = scan.origin
         hit = scan.hit
         dx = pts[:, 0] - o[0]
@@ -384,3 +392,118 @@ def _bump(flat: NDArray[np.uint16], idx: NDArray[np.intp]) -> None:
     """Add one at unique flat indices of a uint16 array, saturating at 65535."""
     v = flat[idx]
     flat[idx] = v + (v < _U16_MAX)
+
+
+# -- memory --------------------------------------------------------------------------------
+
+#: bytes per cell of the layers every window has: log-odds, hits, free (uint16) and 4 mobility counts
+_CELL_BYTES = 2 + 2 + 2 + 2 * N_MOBILITY
+#: bytes per cell of a scan's bounding box in the scratch rasters (polygon, eroded polygon, l_free step)
+_SCRATCH_BYTES = 1 + 1 + 2
+#: share of the machine's memory the grid may take: the map folder and the other stages need the rest
+MEMORY_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class GridMemoryEstimate:
+    """What a :class:`SemanticGrid` allocates, worst case, for a LiDAR of a given range.
+
+    * ``window_m``: the first window's side, m: the farthest returns on both sides plus ``tile_margin``.
+    * ``first_window_bytes``: its layers (log-odds, hits, free, mobility, one layer per class).
+    * ``scratch_bytes``: the rasters one scan is drawn into (its bounding box).
+    * ``class_copy_bytes``: the class layers once more: adding layers for classes seen for the first
+      time copies the existing ones.
+    * ``growth_bytes``: the peak while the window grows by ``tile_margin`` on two sides: the old and
+      the new layers are both held while the old ones are copied.
+    """
+
+    window_m: float
+    first_window_bytes: float
+    scratch_bytes: float
+    class_copy_bytes: float
+    growth_bytes: float
+
+    @property
+    def peak_bytes(self) -> float:
+        """The most held at once: the first window while its class layers are added, or one growth step."""
+        return max(self.first_window_bytes + self.class_copy_bytes + self.scratch_bytes, self.growth_bytes)
+
+
+def estimate_grid_memory(cfg: GridConfig, max_range: float, n_classes: int) -> GridMemoryEstimate:
+    """The memory a grid needs for its first window and one growth step (see :class:`GridMemoryEstimate`).
+
+    ``max_range`` is the farthest return the LiDAR reports (its ``range_max``), m; a non-finite one
+    counts as ``cfg.max_free_range``. Every one of ``n_classes`` is assumed seen (one layer each).
+    Floats, so absurd settings give huge numbers (or inf) instead of overflowing.
+    """
+    res = float(cfg.resolution)
+    reach = float(max_range) if math.isfinite(max_range) and max_range > 0 else float(cfg.max_free_range)
+    margin = float(cfg.tile_margin)
+    per_cell = _CELL_BYTES + 2.0 * max(int(n_classes), 0)
+
+    def cells(length: float) -> float:  # cells along a side, as _ensure() rounds: origin floored, +1
+        n = length / res
+        return float(math.ceil(n) + 2) if math.isfinite(n) else math.inf
+
+    side = 2.0 * reach + 2.0 * margin
+    n0, n1, ns = cells(side), cells(side + margin), cells(2.0 * reach)
+    first = n0 * n0 * per_cell  # products of floats: inf, never OverflowError, for absurd settings
+    grown = n1 * n1 * per_cell
+    scratch = ns * ns * _SCRATCH_BYTES  # a scan's bounding box
+    class_copy = n0 * n0 * 2.0 * max(int(n_classes), 0)
+    return GridMemoryEstimate(side, first, scratch, class_copy, first + grown + scratch)
+
+
+def _machine_memory() -> tuple[float, str]:
+    """Physical memory, or the container's limit where that is lower, and how to name it."""
+    total = float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    what = "this machine's"
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(f, encoding="ascii") as fh:
+                v = fh.read().strip()
+        except OSError:
+            continue
+        if v.isdigit() and 0 < int(v) < total:
+            total, what = float(v), "this container's"
+        break
+    return total, what
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TiB", 2.0 ** 40), ("GiB", 2.0 ** 30), ("MiB", 2.0 ** 20)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n / 1024:.3g} KiB"
+
+
+def check_grid_memory(cfg: GridConfig, max_range: float, n_classes: int, available_bytes: int | None = None) -> int:
+    """Refuse, before any work, a grid whose first window (and one growth step) would not fit in memory.
+
+    Returns the estimated peak in bytes (:func:`estimate_grid_memory`); raises
+    :class:`~semmap.errors.ConfigError` naming the settings and the estimate when it exceeds
+    ``available_bytes`` (default: half of the machine's physical memory, or of the container's
+    limit where that is lower).
+    """
+    est = estimate_grid_memory(cfg, max_range, n_classes)
+    need = est.peak_bytes
+    if available_bytes is None:
+        total, whose = _machine_memory()
+        limit = MEMORY_SHARE * total
+        budget = f"the {_size(limit)} it may use (half of {whose} {_size(total)})"
+    else:
+        limit = float(available_bytes)
+        budget = f"the {_size(limit)} available"
+    if need <= limit:
+        return int(need)
+    side = est.window_m
+    reach = float(max_range) if math.isfinite(max_range) and max_range > 0 else float(cfg.max_free_range)
+    needs = f"needs {_size(need)}, more than {budget}" if math.isfinite(need) else "needs more memory than exists"
+    if cfg.tile_margin > max(reach, 50.0):
+        fix = "use a smaller grid.tile_margin (10 m is typical)"
+    else:
+        fix = "use a coarser grid.resolution (0.05 m is typical)"
+    classes = f", {n_classes} classes" if n_classes else ""
+    raise ConfigError(
+        f"grid.resolution {cfg.resolution:g} m (grid.tile_margin {cfg.tile_margin:g} m, LiDAR range {reach:g} m"
+        f"{classes}): the grid's first {side:.4g} m x {side:.4g} m window {needs}; {fix}")

@@ -24,6 +24,7 @@ out of the records and ignored, so older readers read newer files.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,49 @@ __all__ = [
 ]
 
 _INTRINSICS_KEYS = ("model", "width", "height", "K", "D")
+_MAX_IMAGE_PX = 100_000  # wider or taller than any camera: a wrong number, not a camera
+_MAX_BASELINE_M = 10.0  # LiDAR and camera sit on one robot: further apart is a unit error (millimetres?)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _pixels(v: Any, name: str) -> int:
+    """An image size: a whole, positive number of pixels."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise TypeError(f"{name} must be a whole number of pixels, got {v!r}")
+    if isinstance(v, float):
+        if not (math.isfinite(v) and v.is_integer()):
+            raise ValueError(f"{name} must be a whole number of pixels, got {v!r}")
+        v = int(v)
+    if not 0 < v <= _MAX_IMAGE_PX:
+        raise ValueError(f"{name} must be between 1 and {_MAX_IMAGE_PX} pixels, got {v}")
+    return v
+
+
+def _numbers(v: Any, name: str) -> np.ndarray:
+    """A (nested) list of numbers as a float array; strings, mappings and ragged lists are errors."""
+    if isinstance(v, str | bytes | dict) or v is None:
+        raise TypeError(f"{name} must be a list of numbers, got {type(v).__name__}")
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be a list of numbers (rows of equal length)") from None
+    return a
+
+
+def _frame(data: dict[str, Any], key: str, default: str) -> str:
+    v = data.get(key)
+    if v is None:
+        return default
+    if not isinstance(v, str) or not v:
+        raise TypeError(f"{key} must be a frame name, got {v!r}")
+    return v
+
+
+def _read(path: str | Path) -> Any:
+    return read_yaml(path, "calibration")
 
 
 def _num(v: float) -> float:
@@ -107,18 +151,27 @@ def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, report: dic
 def _ros_camera_info(data: dict[str, Any], source: str) -> CameraIntrinsics:
     """ROS ``camera_calibration`` YAML (what ``cameracalibrator`` writes)."""
     try:
-        K = np.asarray(data["camera_matrix"]["data"], dtype=np.float64).reshape(3, 3)
-        D = np.asarray(data.get("distortion_coefficients", {}).get("data", [0.0] * 5), dtype=np.float64)
+        cm = data["camera_matrix"]
+        if not isinstance(cm, dict):
+            raise TypeError("camera_matrix must be a mapping with 'data'")
+        K = _numbers(cm["data"], "camera_matrix.data")
+        if K.size != 9:
+            raise ValueError(f"camera_matrix.data must have 9 numbers, got {K.size}")
+        dc = data.get("distortion_coefficients") or {}
+        if not isinstance(dc, dict):
+            raise TypeError("distortion_coefficients must be a mapping with 'data'")
+        D = _numbers(dc.get("data", [0.0] * 5), "distortion_coefficients.data")
         model = str(data.get("distortion_model", "plumb_bob"))
         if model not in ("plumb_bob", "rational_polynomial", "equidistant"):
             raise ConfigError(f"{source}: distortion_model {model!r} is not supported "
                               "(plumb_bob, rational_polynomial or equidistant)")
-        return CameraIntrinsics(int(data["image_width"]), int(data["image_height"]), K, D,
+        return CameraIntrinsics(_pixels(data["image_width"], "image_width"),
+                                _pixels(data["image_height"], "image_height"), K.reshape(3, 3), D,
                                 "fisheye" if model == "equidistant" else "pinhole")
     except KeyError as exc:
         raise ConfigError(f"{source}: camera info: missing key {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{source}: camera info: {exc}") from None
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ConfigError(f"{source}: camera info: {_one_line(exc)}") from None
 
 
 def intrinsics_from_dict(data: Any, source: str) -> CameraIntrinsics:
@@ -130,27 +183,32 @@ def intrinsics_from_dict(data: Any, source: str) -> CameraIntrinsics:
         return _ros_camera_info(data, source)
     try:
         intr_d = data["intrinsics"]
+        if not isinstance(intr_d, dict):
+            raise TypeError("must be a mapping (model, width, height, K, D)")
+        model = intr_d.get("model", "pinhole")
+        if model not in ("pinhole", "fisheye"):
+            raise ValueError(f"model must be 'pinhole' or 'fisheye', got {model!r}")
         return CameraIntrinsics(
-            width=int(intr_d["width"]),
-            height=int(intr_d["height"]),
-            K=np.asarray(intr_d["K"], dtype=np.float64),
-            D=np.asarray(intr_d.get("D", [0.0] * 5), dtype=np.float64),
-            model=str(intr_d.get("model", "pinhole")),  # type: ignore[arg-type]
+            width=_pixels(intr_d["width"], "width"),
+            height=_pixels(intr_d["height"], "height"),
+            K=_numbers(intr_d["K"], "K"),
+            D=_numbers(intr_d.get("D", [0.0] * (4 if model == "fisheye" else 5)), "D"),
+            model=model,
         )
     except KeyError as exc:
         raise ConfigError(f"{source}: intrinsics: missing key {exc}") from None
-    except (TypeError, ValueError, AttributeError) as exc:
-        raise ConfigError(f"{source}: intrinsics: {exc}") from None
+    except (TypeError, ValueError, AttributeError, OverflowError) as exc:
+        raise ConfigError(f"{source}: intrinsics: {_one_line(exc)}") from None
 
 
 def read_intrinsics(path: str | Path) -> CameraIntrinsics:
     """The camera of any calibration file (also one without ``T_cam_lidar``, or ROS camera-info YAML)."""
-    return intrinsics_from_dict(read_yaml(path, "calibration"), str(path))
+    return intrinsics_from_dict(_read(path), str(path))
 
 
 def read_intrinsics_report(path: str | Path) -> dict[str, Any]:
     """The optional keys of a file's ``intrinsics`` mapping (``rms_px``, ``board``, ``images``...)."""
-    data = read_yaml(path, "calibration")
+    data = _read(path)
     intr = data.get("intrinsics") if isinstance(data, dict) else None
     if not isinstance(intr, dict):
         return {}
@@ -171,16 +229,28 @@ def calibration_from_dict(data: Any, source: str) -> Calibration:
                           "a camera-only file from `semmap calibrate intrinsics` needs `semmap calibrate "
                           "extrinsics` or `semmap calibrate target` first")
     try:
+        camera_frame = _frame(data, "camera_frame", "camera_optical_frame")
+        lidar_frame = _frame(data, "lidar_frame", "laser")
+    except TypeError as exc:
+        raise ConfigError(f"{source}: {_one_line(exc)}") from None
+    try:
         calib = Calibration(
             intrinsics=intr,
-            T_cam_lidar=np.asarray(data["T_cam_lidar"], dtype=np.float64),
-            camera_frame=str(data.get("camera_frame", "camera_optical_frame")),
-            lidar_frame=str(data.get("lidar_frame", "laser")),
+            T_cam_lidar=_numbers(data["T_cam_lidar"], "T_cam_lidar"),
+            camera_frame=camera_frame,
+            lidar_frame=lidar_frame,
         )
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{source}: T_cam_lidar: {exc}") from None
+        raise ConfigError(f"{source}: T_cam_lidar: {_one_line(exc)}") from None
+    baseline = float(np.linalg.norm(calib.T_cam_lidar[:3, 3]))
+    if baseline > _MAX_BASELINE_M:
+        raise ConfigError(f"{source}: T_cam_lidar: the camera is {baseline:.4g} m from the LiDAR, more than "
+                          f"{_MAX_BASELINE_M:g} m; translations are in metres (millimetres written as metres?)")
     if "T_lidar_cam" in data:
-        inv = np.asarray(data["T_lidar_cam"], dtype=np.float64)
+        try:
+            inv = _numbers(data["T_lidar_cam"], "T_lidar_cam")
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{source}: {_one_line(exc)}") from None
         if inv.shape != (4, 4) or not np.allclose(inv @ calib.T_cam_lidar, np.eye(4), atol=1e-6):
             raise ConfigError(f"{source}: T_lidar_cam is not the inverse of T_cam_lidar")
     return calib
@@ -188,4 +258,4 @@ def calibration_from_dict(data: Any, source: str) -> Calibration:
 
 def read_calibration(path: str | Path) -> Calibration:
     """Read a calibration file; every error names the file and the field."""
-    return calibration_from_dict(read_yaml(path, "calibration"), str(path))
+    return calibration_from_dict(_read(path), str(path))

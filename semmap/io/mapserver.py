@@ -74,7 +74,7 @@ def write_map(
     img[occ] = OCCUPIED
     image_path = yaml_path.with_suffix(".pgm")
     if not cv2.imwrite(str(image_path), np.flipud(img)):
-        raise OSError(f"{image_path}: cannot write map image")
+        raise OSError(0, "cannot write the map image", str(image_path))
     meta = {
         "image": image_path.name,
         "mode": "trinary",

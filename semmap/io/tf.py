@@ -22,6 +22,7 @@ class TfTree:
 
     def __init__(self) -> None:
         self._parent: dict[str, tuple[str, NDArray[np.float64]]] = {}
+        self._path: list[str] = []
 
     def add(self, parent: str, child: str, t_parent_child: NDArray[np.float64]) -> None:
         self._parent[child] = (parent, np.asarray(t_parent_child, dtype=np.float64))
@@ -33,8 +34,14 @@ class TfTree:
     def __contains__(self, frame: str) -> bool:
         return frame in self.frames
 
+    def chain(self, target: str, source: str) -> list[str]:
+        """The frames from ``source`` to ``target`` (both included), for messages."""
+        self.lookup(target, source)
+        return self._path[:]
+
     def lookup(self, target: str, source: str) -> NDArray[np.float64]:
         """``T_target_source``: maps points in ``source`` into ``target``."""
+        self._path = [source]
         if target == source:
             return np.eye(4)
         # breadth-first over the undirected tree
@@ -43,6 +50,7 @@ class TfTree:
             edges.setdefault(parent, []).append((child, t))  # parent -> child: T_parent_child
             edges.setdefault(child, []).append((parent, se3_inverse(t)))  # child -> parent
         best: dict[str, NDArray[np.float64]] = {source: np.eye(4)}  # T_frame_source
+        came_from: dict[str, str] = {}
         queue = deque([source])
         while queue:
             f = queue.popleft()
@@ -51,7 +59,12 @@ class TfTree:
                     continue
                 # T_nxt_source = inv(T_f_nxt) @ T_f_source
                 best[nxt] = se3_inverse(t_f_nxt) @ best[f]
+                came_from[nxt] = f
                 if nxt == target:
+                    path = [nxt]
+                    while path[-1] != source:
+                        path.append(came_from[path[-1]])
+                    self._path = path[::-1]
                     return best[nxt]
                 queue.append(nxt)
         known = ", ".join(sorted(self.frames)) or "none"

@@ -64,7 +64,9 @@ class Tour:
     base_frame: str
     T_base_lidar: NDArray[np.float64]
     calibration: Calibration | None
-    calibration_path: Path | None
+    calibration_path: Path | None  # None: no camera, or the calibration came from the bag (camera_info + /tf)
+    T_base_lidar_source: str = ""  # where T_base_lidar came from, for logs and the summary
+    calibration_source: str = ""  # where the calibration came from
 
 
 def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> tuple[BuildConfig, Path]:
@@ -196,35 +198,46 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
         base_frame = odometry_from_msg(_first(bag, topics.odometry))[2]
     base_frame = base_frame or "base_link"
 
+    tree: TfTree | None = None
+
+    def tf_tree() -> TfTree:
+        """/tf_static, and the first messages of /tf, read once when a transform is needed."""
+        nonlocal tree
+        if tree is None:
+            tree = TfTree()
+            for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
+                n = 0
+                for _, _, msg in iter_messages(bag, [tf_topic]):
+                    for _, parent, child, mat in transforms_from_msg(msg):
+                        if tf_topic == topics.tf_static or child not in tree:
+                            tree.add(parent, child, mat)
+                    n += 1
+                    if tf_topic != topics.tf_static and n > 200:  # /tf: a first look is enough
+                        break
+        return tree
+
     # T_base_lidar: the config, else /tf_static (any chain of frames)
     if config.frames.base_T_lidar is not None:
         t_base_lidar = se3_from_xyz_rpy(config.frames.base_T_lidar.xyz, config.frames.base_T_lidar.rpy)
+        t_source = "frames.base_T_lidar in the config"
+    elif base_frame == lidar_frame:
+        t_base_lidar, t_source = np.eye(4), "identity (the scans are in the base frame)"
     else:
-        tree = TfTree()
-        for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
-            n = 0
-            for _, _, msg in iter_messages(bag, [tf_topic]):
-                for _, parent, child, mat in transforms_from_msg(msg):
-                    if tf_topic == topics.tf_static or child not in tree:
-                        tree.add(parent, child, mat)
-                n += 1
-                if tf_topic != topics.tf_static and n > 200:  # /tf: a first look is enough
-                    break
-            if base_frame in tree and lidar_frame in tree:
-                break
-        if base_frame == lidar_frame:
-            t_base_lidar = np.eye(4)
-        elif base_frame in tree and lidar_frame in tree:
-            t_base_lidar = tree.lookup(base_frame, lidar_frame)
+        tf = tf_tree()
+        if base_frame in tf and lidar_frame in tf:
+            t_base_lidar = tf.lookup(base_frame, lidar_frame)
+            t_source = "the transform chain " + " -> ".join(tf.chain(lidar_frame, base_frame))
         elif topics.odometry is None:
             log.warning("no transform %s -> %s; mapping in the LiDAR frame", base_frame, lidar_frame)
             base_frame, t_base_lidar = lidar_frame, np.eye(4)
+            t_source = "identity (no transform found and no odometry: mapping in the LiDAR frame)"
         else:
             raise BagError(f"{bag}: no transform from {base_frame} to {lidar_frame} in /tf_static or /tf; "
                            f"set frames.base_T_lidar in the config")
 
     calib = None
     calib_path: Path | None = None
+    calib_source = ""
     if topics.frames is not None:
         if calibration is not None:
             calib_path = Path(calibration)
@@ -235,13 +248,45 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
             calib_path = folder / "calibration.yaml"
         elif (bag.parent / "calibration.yaml").is_file():
             calib_path = bag.parent / "calibration.yaml"
+        if calib_path is not None:
+            calib = read_calibration(calib_path)
+            calib_source = str(calib_path)
+            if topics.camera_info is not None:
+                _check_camera_info(bag, topics.camera_info, calib, calib_path)
+            if calib.lidar_frame and calib.lidar_frame != lidar_frame:
+                log.warning("%s: calibration is for LiDAR frame %r, scans are in %r", calib_path,
+                            calib.lidar_frame, lidar_frame)
         else:
-            raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration; "
-                              f"pass --calibration FILE or set 'calibration:' in the config")
-        calib = read_calibration(calib_path)
-        if topics.camera_info is not None:
-            _check_camera_info(bag, topics.camera_info, calib, calib_path)
-        if calib.lidar_frame and calib.lidar_frame != lidar_frame:
-            log.warning("%s: calibration is for LiDAR frame %r, scans are in %r", calib_path,
-                        calib.lidar_frame, lidar_frame)
-    return Tour(bag, folder, manifest, config, topics, types, lidar_frame, base_frame, t_base_lidar, calib, calib_path)
+            calib, calib_source = _calibration_from_bag(bag, topics, lidar_frame, tf_tree)
+    return Tour(bag, folder, manifest, config, topics, types, lidar_frame, base_frame, t_base_lidar, calib, calib_path,
+                t_source, calib_source)
+
+
+def _calibration_from_bag(bag: Path, topics: Topics, lidar_frame: str,
+                          tf_tree: Any) -> tuple[Calibration, str]:
+    """The calibration a bag carries: intrinsics from ``camera_info``, ``T_cam_lidar`` from the
+    transform chain between the LiDAR frame and the camera_info's frame."""
+    hint = "pass --calibration FILE or set 'calibration:' in the config"
+    if topics.camera_info is None:
+        raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration file and no "
+                          f"sensor_msgs/CameraInfo topic; {hint}")
+    msg = _first(bag, topics.camera_info)
+    try:
+        intr = camera_info_from_msg(msg)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{bag}: {topics.camera_info}: unusable camera info ({exc}); {hint}") from None
+    if not np.any(intr.K):
+        raise ConfigError(f"{bag}: {topics.camera_info}: the camera info has no intrinsics (K is zero); {hint}")
+    cam_frame = str(msg.header.frame_id).lstrip("/")
+    tf = tf_tree()
+    if not cam_frame or cam_frame not in tf or lidar_frame not in tf:
+        raise ConfigError(f"{bag}: no calibration file, and no transform from the LiDAR frame {lidar_frame!r} to "
+                          f"the camera frame {cam_frame!r} of {topics.camera_info} in /tf_static or /tf; {hint}")
+    T_cam_lidar = tf.lookup(cam_frame, lidar_frame)
+    chain = " -> ".join(tf.chain(cam_frame, lidar_frame))
+    log.info("no calibration file: intrinsics from %s, T_cam_lidar from the transform chain %s",
+             topics.camera_info, chain)
+    return (Calibration(intrinsics=intr, T_cam_lidar=T_cam_lidar, camera_frame=cam_frame, lidar_frame=lidar_frame),
+            f"{topics.camera_info} and the transform chain {chain}")
+
+

@@ -19,12 +19,16 @@ def read_yaml(path: str | Path, what: str = "file") -> Any:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read {what} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a YAML {what} (not UTF-8 text: byte {exc.start})") from None
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}:" if mark is not None else ""
         raise ConfigError(f"{p}:{where} malformed YAML in {what}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: malformed YAML in {what} (nested too deep)") from None
 
 
 class _Dumper(yaml.SafeDumper):

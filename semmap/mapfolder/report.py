@@ -154,7 +154,7 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         "## Trajectory",
         "",
-        f"Registration mode `{s['registration']['mode']}`.",
+        "Registration " + registration_line(s["registration"]) + ".",
         "",
         f"![trajectory]({pictures['trajectory']})",
         "",
@@ -184,6 +184,7 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         _cpu_line(s.get("cpu_s")),
         "",
+        *(["## Warnings", "", *[f"- {w}" for w in s["warnings"]], ""] if s.get("warnings") else []),
         "## Messages",
         "",
         "| topic | read | skipped |",
@@ -192,6 +193,25 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
     ]
     path.write_text("\n".join(lines), encoding="utf-8")
+
+
+def registration_line(r: dict[str, Any]) -> str:
+    """How registration went, in words: ICP results used, rejected and failed, filter restarts."""
+    mode = r["mode"]
+    text = {"fused": "wheel odometry and KISS-ICP in an EKF", "icp": "KISS-ICP alone",
+            "odometry": "wheel odometry alone"}.get(mode, mode)
+    parts = []
+    if mode != "odometry":
+        parts.append(f"{r.get('icp_accepted', 0)} ICP results used")
+        if mode == "fused":
+            parts.append(f"{r.get('icp_rejected', 0)} rejected by the filter's gate")
+        parts.append(f"{r.get('icp_failed', 0)} failed")
+    if mode == "fused":
+        n = r.get("filter_resets", 0)
+        parts.append(f"the filter restarted {n} time{'s' if n != 1 else ''}")
+    if r.get("odom_missing"):
+        parts.append(f"{r['odom_missing']} scans without odometry")
+    return f"{mode} ({text})" + (": " + ", ".join(parts) if parts else "")
 
 
 def _cpu_line(cpu: dict[str, float] | None) -> str:

@@ -135,7 +135,8 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
                        "odometry": tour.topics.odometry, "tf_static": tour.topics.tf_static},
             "frames": {"base": tour.base_frame, "lidar": tour.lidar_frame, "map": "map"},
             "T_base_lidar": np.round(tour.T_base_lidar, 9).tolist(),
-            "calibration": str(tour.calibration_path) if tour.calibration_path else None,
+            "T_base_lidar_source": tour.T_base_lidar_source,
+            "calibration": tour.calibration_source or None,
         },
         "messages": {"read": stats.read, "skipped": stats.skipped,
                      "odometry_out_of_order": pipe.odom.out_of_order if pipe.odom is not None else 0},
@@ -162,6 +163,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "hits_by_class": {pipe.class_names[i]: int(v) for i, v in enumerate(pipe.class_hits) if v > 0},
         },
         "registration": {"mode": cfg.registration.mode, **pipe.result.registration},
+        "warnings": pipe.warnings,
         "map": {
             "resolution": spec.resolution,
             "origin": [spec.origin_x, spec.origin_y, 0.0],

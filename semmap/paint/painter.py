@@ -22,14 +22,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from ..classes import ClassTable
 from ..config import PaintConfig, SyncConfig
 from ..errors import BagError
-from ..geometry import project_points, se2_apply, se2_between, se2_inverse, se2_to_se3, se3_inverse
+from ..geometry import (
+    project_points,
+    se2_apply,
+    se2_between,
+    se2_inverse,
+    se2_to_se3,
+    se3_inverse,
+    unproject_pixels,
+)
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
 from .occlusion import OcclusionParams, hidden_points
@@ -40,7 +47,10 @@ __all__ = ["Painter", "PaintStats", "CameraView"]
 @dataclass
 class PaintStats:
     scans: int = 0
-    painted: int = 0  # scans that had an image
+    painted: int = 0  # scans that had an image and at least one point in it
+    paired: int = 0  # scans that had an image
+    points_paired: int = 0  # returns of the scans that had an image
+    points_ahead: int = 0  # of those, the returns in front of the camera
     points_in_view: int = 0
     points_total: int = 0
     deskewed: int = 0
@@ -102,12 +112,9 @@ def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
     v = np.linspace(0, h - 1, 25)
     border = np.concatenate([np.column_stack([u, np.zeros_like(u)]), np.column_stack([u, np.full_like(u, h - 1)]),
                              np.column_stack([np.zeros_like(v), v]), np.column_stack([np.full_like(v, w - 1), v])])
-    pts = border.reshape(-1, 1, 2).astype(np.float64)
-    if intr.model == "fisheye":
-        und = cv2.fisheye.undistortPoints(pts, intr.K, intr.D)
-    else:
-        und = cv2.undistortPoints(pts, intr.K, intr.D)
-    und = und.reshape(-1, 2)
+    # not cv2.undistortPoints: its few fixed-point iterations stop short in the corners of wide
+    # fisheye lenses, and the bounds then cut off points that land in the image
+    und = unproject_pixels(intr.K, intr.D, border, 1.0, intr.model)[:, :2]
     (x0, y0), (x1, y1) = und.min(axis=0), und.max(axis=0)
     mx, my = 0.05 * (x1 - x0), 0.05 * (y1 - y0)
     return float(x0 - mx), float(x1 + mx), float(y0 - my), float(y1 + my)
@@ -253,6 +260,8 @@ class Painter:
                 eye = se2_apply(se2_inverse(rel), eye)
                 self.stats.motion_compensated += 1
         sel = np.nonzero(hit)[0]
+        self.stats.paired += 1
+        self.stats.points_paired += sel.size
         if sel.size == 0:
             return
         xy_sel = xy[sel]
@@ -263,6 +272,7 @@ class Painter:
             xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
         ahead = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1)  # in front, a column of the image
         front = ahead & (yn >= y0) & (yn <= y1)
+        self.stats.points_ahead += int(np.count_nonzero(zc > self.paint_cfg.min_depth))
         if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
             k = intr.K
             uv = np.empty((sel.size, 2))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -74,6 +75,30 @@ def iter_image_folder(folder: Path) -> Iterator[tuple[str, Image]]:
             log.warning("%s: cannot read the image; skipped", p)
             continue
         yield p.stem, Image(int(p.stem) if digits else i, p.stem, np.ascontiguousarray(bgr[:, :, ::-1]), "rgb8")
+
+
+class _Skipped:
+    """Frames the segmenter refused: the first few are logged, the rest counted by reason (the
+    reason with its numbers taken out, so 'no label image for stamp N' counts as one)."""
+
+    SHOWN = 3
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.reasons: dict[str, int] = {}
+        self.first = ""
+
+    def add(self, name: str, exc: Exception) -> None:
+        self.count += 1
+        reason = re.sub(r"(?<![\w/.-])\d+(?![\w/.-])", "N", str(exc))  # numbers, not paths
+        self.reasons[reason] = self.reasons.get(reason, 0) + 1
+        self.first = self.first or str(exc)
+        (log.warning if self.count <= self.SHOWN else log.debug)("%s: skipped: %s", name, exc)
+
+    def report(self) -> None:
+        if self.count > self.SHOWN:
+            log.warning("%d images skipped in all: %s", self.count,
+                        "; ".join(f"{v} x {k}" for k, v in sorted(self.reasons.items(), key=lambda kv: -kv[1])))
 
 
 def _pick_topic(bag: Path, wanted: str | None, consumes: str) -> tuple[str, str]:
@@ -184,25 +209,25 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
     seg = create_segmenter(config)
     n, seconds = 0, 0.0
     pixels: dict[int, int] = {}
+    skipped = _Skipped()
     try:
-        with atomic_dir(out, force) as tmp:
+        with atomic_dir(out, force, marker="summary.json", inputs=[src], what="segmentation folder") as tmp:
             (tmp / "labels").mkdir()
             if overlays:
                 (tmp / "overlays").mkdir()
             for name, image in frames:
-                if limit is not None and n >= limit:
+                if limit is not None and n + skipped.count >= limit:  # images tried, segmented or not
                     break
                 t0 = time.perf_counter()
                 try:
                     result = seg.segment(image)
                 except SemmapError as exc:
-                    stats["bad_frames"] += 1
-                    log.warning("%s: %s", name, exc)
+                    skipped.add(name, exc)
                     continue
                 seconds += time.perf_counter() - t0
                 n += 1
                 if not cv2.imwrite(str(tmp / "labels" / f"{name}.png"), result.label):
-                    raise OSError(f"{tmp / 'labels' / name}.png: cannot write")
+                    raise OSError(0, "cannot write the label image", str(tmp / "labels" / f"{name}.png"))
                 if overlays:
                     ov = draw_overlay(image, result)
                     cv2.imwrite(str(tmp / "overlays" / f"{name}.jpg"), ov[:, :, ::-1],
@@ -212,8 +237,11 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
                     pixels[int(v)] = pixels.get(int(v), 0) + int(counts[v])
                 if progress is not None:
                     progress(n, max(total, n))
+            skipped.report()
             if n == 0:
-                raise SemmapError(f"{src}: no image could be segmented")
+                why = f" ({skipped.first})" if skipped.first else ""
+                raise SemmapError(f"{src}: no image could be segmented{why}")
+            stats["bad_frames"] += skipped.count
             names = tuple(seg.names)
             all_px = sum(pixels.values()) or 1
             share = {names[v - 1]: round(c / all_px, 4) for v, c in sorted(pixels.items(), key=lambda kv: -kv[1])}
@@ -222,6 +250,7 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
             (tmp / "labels" / "classes.json").write_text(json.dumps(meta, indent=1))
             (tmp / "classes.json").write_text(json.dumps(meta, indent=1))
             summary = {"source": source_desc, "frames": n, "bad_frames": stats["bad_frames"],
+                       "skipped_because": skipped.reasons,
                        "segment_s": round(seconds, 3), "fps": round(n / seconds, 2) if seconds else None,
                        "pixel_share": share, "segmentation": config.model_dump(mode="json")}
             (tmp / "summary.json").write_text(json.dumps(summary, indent=1))

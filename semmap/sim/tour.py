@@ -137,7 +137,8 @@ def simulate(
     sc = resolve_scenario(scenario)
     cfg = effective_config(sc, config)
     out = Path(out)
-    with atomic_dir(out, force) as tmp:
+    inputs = [x for x in (scenario, config) if isinstance(x, str | Path) and Path(x).exists()]
+    with atomic_dir(out, force, marker="tour.yaml", inputs=inputs, what="semmap tour folder") as tmp:
         result = _simulate_into(sc, cfg, tmp, fmt, seed, progress)
     bag = out / result.bag.relative_to(tmp)
     return SimulationResult(out, bag, fmt, sc.world.name, seed, result.duration_s, result.topics,

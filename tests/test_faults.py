@@ -1,0 +1,279 @@
+"""Faults are features: whatever happens to a process of `semmap build`, nothing hangs and nothing is left.
+
+Each case runs the real command line in its own session, kills a worker or signals the
+command at a given moment, and checks what a user (and their robot's disk) is left with:
+the exit code, one error line without a traceback, no process of the build still running,
+no shared memory of it in /dev/shm, and no output folder, hidden or not.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semmap.config import GridConfig, RegistrationConfig, SegmentationConfig
+from semmap.errors import InternalError
+from semmap.workers import FrameWorker, MapperWorkers
+
+WORKERS = ("semmap-frames", "semmap-register", "semmap-fusion")
+STAGE = {"semmap-frames": "frames", "semmap-register": "registration", "semmap-fusion": "fusion"}
+
+
+@pytest.fixture(scope="module")
+def tour(tmp_path_factory):
+    """A 12 s demo tour, and the config that segments it in a frame worker: label PNGs written by
+    `semmap segment` (the `folder` backend decodes every camera image in the worker)."""
+    from semmap.segment.run import segment_source
+    from semmap.sim.scenarios import demo
+    from semmap.sim.tour import simulate
+
+    root = tmp_path_factory.mktemp("faults")
+    t = simulate(replace(demo().world, duration_s=12.0), root / "demo", seed=2)
+    segment_source(t.out, root / "seg", SegmentationConfig(backend="topic"), overlays=False)
+    cfg = root / "worker.yaml"
+    cfg.write_text(f"segmentation:\n  backend: folder\n  folder: {root / 'seg' / 'labels'}\n")
+    return t.out, cfg
+
+
+def _children(pid: int) -> dict[int, str]:
+    """Child processes of ``pid`` and their names (/proc)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            kids = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for k in kids:
+            try:
+                out[int(k)] = Path(f"/proc/{k}/comm").read_text().strip()
+            except OSError:
+                pass
+    return out
+
+
+def _shm_mapped(pid: int) -> set[str]:
+    """Shared-memory files a process has mapped."""
+    try:
+        lines = Path(f"/proc/{pid}/maps").read_text().splitlines()
+    except OSError:
+        return set()
+    return {line.split()[-1] for line in lines if "/dev/shm/" in line}
+
+
+def _has_open(pid: int, name: str) -> bool:
+    """Whether a process has a file of this name open."""
+    for fd in Path(f"/proc/{pid}/fd").glob("*"):
+        try:
+            if os.readlink(fd).endswith(name):
+                return True
+        except OSError:
+            pass
+    return False
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")
+
+
+class Run:
+    """`semmap build` in its own session, watched from outside."""
+
+    def __init__(self, args: list[str], cwd: Path) -> None:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.proc = subprocess.Popen([sys.executable, "-m", "semmap", *args], cwd=cwd, env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     start_new_session=True)
+        self.seen: dict[int, str] = {}
+        self.shm: set[str] = set()
+
+    def watch(self) -> None:
+        self.seen.update(_children(self.proc.pid))
+        self.shm |= _shm_mapped(self.proc.pid)
+
+    def wait_for(self, what, timeout: float = 60.0) -> None:
+        """Poll until ``what()`` holds (the build is still running), recording its processes."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.watch()
+            if what():
+                return
+            if self.proc.poll() is not None:
+                raise AssertionError(f"the build ended first: {self.proc.returncode} {self.proc.stderr.read()}")
+            time.sleep(0.02)
+        raise AssertionError("timed out waiting for the build")
+
+    def pause(self, seconds: float) -> None:
+        """Let the build run on for a while, recording its processes."""
+        end = time.monotonic() + seconds
+        self.wait_for(lambda: time.monotonic() >= end)
+
+    def wait_for_loop(self) -> None:
+        """Until the scans stream: every worker started, and the build reads the bag for its loop."""
+        self.wait_for(lambda: all(self.worker(w) is not None for w in WORKERS))
+        self.wait_for(lambda: _has_open(self.proc.pid, ".bag"))
+        self.pause(0.2)
+
+    def worker(self, name: str) -> int | None:
+        return next((pid for pid, comm in _children(self.proc.pid).items() if comm == name), None)
+
+    def finish(self, timeout: float = 30.0) -> tuple[int, str]:
+        try:
+            _, err = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.communicate()
+            raise AssertionError(f"the build hung: no exit {timeout} s after the fault") from None
+        return self.proc.returncode, err
+
+
+def _assert_clean(run: Run, out: Path) -> None:
+    time.sleep(0.5)  # the resource tracker ends once its last user has
+    alive = {pid: comm for pid, comm in run.seen.items() if _running(pid)}
+    assert not alive, f"processes left running: {alive}"
+    assert run.seen, "the build's processes were never seen"
+    left = {p for p in run.shm if Path(p).exists()}
+    assert not left, f"shared memory left: {left}"
+    assert not out.exists(), f"{out} was written"
+    assert not list(out.parent.glob(f".{out.name}.*")), "a hidden partial folder was left"
+
+
+def _one_line(err: str, *needles: str) -> None:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in err, err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSEGV])
+@pytest.mark.parametrize("name", WORKERS)
+def test_a_killed_worker_is_one_error_line_and_nothing_is_left(tour, tmp_path, name, sig):
+    bag, cfg = tour
+    out = tmp_path / "map"
+    run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
+    run.wait_for_loop()
+    pid = run.worker(name)
+    assert pid is not None
+    t0 = time.monotonic()
+    os.kill(pid, sig)
+    code, err = run.finish()
+    assert time.monotonic() - t0 < 10, "the failure took more than a few seconds to surface"
+    assert code == 6, err
+    _one_line(err, f"the {STAGE[name]} worker was killed by {signal.Signals(sig).name}")
+    _assert_clean(run, out)
+
+
+@pytest.mark.parametrize("moment", ["start-up", "mid-build", "writing"])
+@pytest.mark.parametrize("sig,target", [(signal.SIGTERM, "main"), (signal.SIGINT, "main"), (signal.SIGINT, "group"),
+                                        (signal.SIGHUP, "group")])
+def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, moment):
+    bag, cfg = tour
+    out = tmp_path / "map"
+    run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
+    if moment == "start-up":  # the workers exist but are still loading their libraries
+        run.wait_for(lambda: run.worker("semmap-frames") is not None)
+    elif moment == "mid-build":
+        run.wait_for_loop()
+    else:  # the map folder is being written into its hidden folder
+        run.wait_for(lambda: any(tmp_path.glob(".map.*.partial/map.pgm")), timeout=120)
+    if target == "main":
+        os.kill(run.proc.pid, sig)
+    else:  # Ctrl-C in a terminal, a closed terminal: every process of the group gets it
+        os.killpg(run.proc.pid, sig)
+    code, err = run.finish()
+    assert code == 128 + sig, err
+    _one_line(err, "interrupted" if sig == signal.SIGINT else "terminated", signal.Signals(sig).name)
+    _assert_clean(run, out)
+
+
+def test_memory_exhausted_in_fusion_is_an_error_not_a_hang(tour, tmp_path):
+    """The fusion worker's address space is capped once it has started: its grid cannot grow."""
+    import resource
+
+    bag, cfg = tour
+    out = tmp_path / "map"
+    run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
+    run.wait_for(lambda: run.worker("semmap-fusion") is not None and run.worker("semmap-frames") is not None)
+    time.sleep(0.3)
+    pid = run.worker("semmap-fusion")
+    vm = int(next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                  if line.startswith("VmSize")).split()[1]) * 1024
+    resource.prlimit(pid, resource.RLIMIT_AS, (vm + (4 << 20), vm + (4 << 20)))
+    code, err = run.finish()
+    assert code == 6, err
+    _one_line(err, "the fusion worker ran out of memory")
+    _assert_clean(run, out)
+
+
+def test_a_bug_in_a_worker_is_reported_as_a_bug_with_its_traceback():
+    mapper = MapperWorkers(RegistrationConfig(mode="odometry"), GridConfig(), ())
+    try:
+        mapper.wait_ready()
+        for _ in range(20):
+            mapper.push(object(), np.zeros(3))  # not a painted scan: the registrar fails on it
+        with pytest.raises(InternalError, match="in the registration worker: AttributeError") as info:
+            mapper.finish()
+        assert "registrar.py" in str(info.value.__cause__)  # the worker's own traceback travels with it
+    finally:
+        mapper.close()
+
+
+def test_a_bug_in_the_frame_worker_is_reported_as_a_bug(tour):
+    bag, _ = tour
+    frames = FrameWorker(bag / "demo.bag", "/scan", "sensor_msgs/msg/Image",  # scans are not images
+                         SegmentationConfig(backend="topic"), (480, 640))
+    try:
+        with pytest.raises(InternalError, match="in the frames worker: AttributeError"):
+            frames.wait_ready()
+            frames.next()
+    finally:
+        frames.close()
+
+
+def test_cli_exit_code_70_and_worker_traceback_with_debug(monkeypatch, capsys):
+    from semmap.cli import build as build_cmd
+    from semmap.cli.main import main
+
+    def run(args):  # a command whose registration worker meets a bug
+        mapper = MapperWorkers(RegistrationConfig(mode="odometry"), GridConfig(), ())
+        try:
+            mapper.wait_ready()
+            mapper.push(object(), np.zeros(3))
+            mapper.finish()
+        finally:
+            mapper.close()
+
+    monkeypatch.setattr(build_cmd, "run", run)
+    assert main(["build", "--demo", "--out", "unused"]) == 70
+    err = capsys.readouterr().err
+    _one_line(err, "internal error in the registration worker: AttributeError")
+    with pytest.raises(InternalError) as info:
+        main(["build", "--demo", "--out", "unused", "--debug"])
+    assert "Traceback" in str(info.value.__cause__)
+
+
+def test_worker_log_lines_reach_the_user(tour, tmp_path):
+    """Log records of the registration worker appear on the command line's stderr with -v."""
+    bag, _ = tour
+    cfg = tmp_path / "c.yaml"
+    # a filter that restarts at once: every rejected ICP result is logged by the registration worker
+    cfg.write_text("registration:\n  ekf:\n    gate_chi2: 0.0001\n    reset_after: 1\n")
+    res = subprocess.run([sys.executable, "-m", "semmap", "build", str(bag), "--config", str(cfg), "--out",
+                          str(tmp_path / "m"), "-v"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "restarting the filter" in res.stderr
+    summary = json.loads((tmp_path / "m" / "summary.json").read_text())
+    assert summary["registration"]["filter_resets"] > 0

@@ -42,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     out.print(f"start:     {_time(info.start_ns)}")
     out.print(f"end:       {_time(info.end_ns)}")
     out.print(f"messages:  {info.message_count}")
+    if info.index_note:
+        out.print(f"index:     {info.index_note}", markup=False)
     out.print("topics:")
     width = max((len(t.name) for t in info.topics), default=10)
     for t in info.topics:

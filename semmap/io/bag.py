@@ -3,15 +3,25 @@
 Nothing else in semmap imports :mod:`rosbags`. The writer takes semmap records
 and plain numbers and serialises real ROS messages; the reader side gives
 :func:`bag_info` (what ``semmap info`` prints) and raw message iteration.
+
+Bags rosbags cannot read are read as ROS's own tools read them where that is possible: a ROS1
+bag whose index rosbags rejects (2010-era index records, a recording never closed, an index
+that does not lead to the messages) through its index read by ROS's rules or rebuilt from its
+chunks as ``rosbag reindex`` would, in memory; ``roslib/Header`` as ``std_msgs/Header``. Whatever
+a reading library raises on a damaged bag becomes a :class:`BagError` naming the file and what
+is wrong with it.
 """
 
 from __future__ import annotations
 
+import bisect
 import heapq
 import io
 import logging
 import mmap
 import os
+import re
+import struct
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -21,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import BagError
+from ..errors import BagError, SemmapError
 from ..geometry import se3_to_translation_quaternion, yaw_to_quaternion
 from ..records import CameraIntrinsics, Image, Scan
 
@@ -366,22 +376,637 @@ def resolve_bag_path(path: str | Path) -> Path:
     raise BagError(f"{p}: folder holds several bags ({names}); name one")
 
 
-@contextmanager
-def open_bag(path: str | Path) -> Iterator[Any]:
-    """Open a bag with rosbags' ``AnyReader``; errors become :class:`BagError`."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
+# ---------------------------------------------------------------------------------------
+# ROS1 bags whose index rosbags cannot use: read it by ROS's rules, or rebuild it from the chunks
+#
+# A ROS1 bag (format 2.0) is the line ``#ROSBAG V2.0`` and then records: a header (a 4-byte length,
+# then fields ``<4-byte length>name=value``, ``op`` among them) and data (a 4-byte length, then the
+# bytes). The file header (op 3) gives ``index_pos``; chunks (op 5) hold connection (op 7) and
+# message (op 2) records, and each is followed by one index data record (op 4) per connection in
+# it; at ``index_pos`` come the connection records and one chunk info record (op 6) per chunk.
+# The reading rules here are those of ROS's own reader (ros_comm tools/rosbag/src/rosbag/bag.py).
+
+_MAGIC = b"#ROSBAG V2.0\n"
+_OP_MSG, _OP_FILE_HEADER, _OP_INDEX, _OP_CHUNK, _OP_CHUNK_INFO, _OP_CONNECTION = 2, 3, 4, 5, 6, 7
+_U32, _U64, _TIME = struct.Struct("<I"), struct.Struct("<Q"), struct.Struct("<II")
+#: rebuilt indexes of the last few bags, by path and file identity (a build opens its bag several times)
+_REBUILT: dict[tuple[str, int, int, int], _Ros1Index] = {}
+_REBUILT_KEEP = 4
+
+
+class _Damaged(Exception):
+    """What is wrong with a ROS1 bag, and where (becomes a :class:`BagError` naming the file)."""
+
+
+class _Truncated(_Damaged):
+    """The file ends inside a record."""
+
+
+@dataclass
+class _Ros1Chunk:
+    """A chunk record: where it is in the file and the messages it holds."""
+
+    pos: int  # the chunk record
+    end: int  # the end of its data
+    entries: dict[int, list[tuple[int, int]]]  # connection id -> [(time ns, offset in the chunk's data)]
+
+
+@dataclass
+class _Ros1Index:
+    """The index of a ROS1 bag as ROS reads it, or rebuilt from its chunks."""
+
+    connections: dict[int, tuple[bytes, list[tuple[bytes, bytes]]]]  # id -> (topic, connection header)
+    chunks: list[_Ros1Chunk]
+    how: str  # for people: how it was made, and why
+    rebuilt: bool = False  # from the chunks (else the bag's own index, read by ROS's rules)
+
+
+def _fields(buf: Any, start: int, end: int, what: str) -> dict[str, bytes]:
+    """The ``name=value`` fields of a record header (a repeated name: the last, as ROS reads it); unknown
+    fields are kept, and ignored."""
+    out: dict[str, bytes] = {}
+    pos = start
+    while pos < end:
+        if pos + 4 > end:
+            raise _Damaged(f"{what} has a malformed header")
+        (size,) = _U32.unpack_from(buf, pos)
+        pos += 4
+        if pos + size > end:
+            raise _Damaged(f"{what} has a header field longer than its header")
+        name, sep, value = bytes(buf[pos:pos + size]).partition(b"=")
+        if not sep:
+            raise _Damaged(f"{what} has a header field without '='")
+        out[name.decode("latin-1")] = value
+        pos += size
+    return out
+
+
+def _record(buf: Any, pos: int, end: int, what: str, cut: type[_Damaged] = _Damaged) -> tuple[dict[str, bytes], int, int]:
+    """Header fields, data start and data length (as written) of the record at ``pos`` (before ``end``)."""
+    if pos + 4 > end:
+        raise cut(f"{what} is cut off (at byte {end})")
+    (hlen,) = _U32.unpack_from(buf, pos)
+    if pos + 8 + hlen > end:
+        raise cut(f"{what} has a {hlen}-byte header, but the data ends at byte {end}")
+    fields = _fields(buf, pos + 4, pos + 4 + hlen, what)
+    (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
+    return fields, pos + 8 + hlen, dlen
+
+
+def _field(fields: dict[str, bytes], name: str, codec: struct.Struct, what: str) -> int:
+    value = fields.get(name)
+    if value is None or len(value) != codec.size:
+        raise _Damaged(f"{what} has no valid {name!r} field")
+    parts = codec.unpack(value)
+    return parts[0] if len(parts) == 1 else parts[0] * 1_000_000_000 + parts[1]
+
+
+def _op(fields: dict[str, bytes], what: str) -> int:
+    value = fields.get("op")
+    if value is None or len(value) != 1:
+        raise _Damaged(f"{what} has no valid 'op' field")
+    return value[0]
+
+
+def _connection(fields: dict[str, bytes], buf: Any, start: int, dlen: int, end: int,
+                what: str) -> tuple[int, bytes, list[tuple[bytes, bytes]]]:
+    """(id, topic, connection header) of a connection record."""
+    if start + dlen > end:
+        raise _Damaged(f"{what} is longer than the data it is in")
+    conn = _field(fields, "conn", _U32, what)
+    header = _fields(buf, start, start + dlen, what)
+    topic = fields.get("topic", header.get("topic", b""))
+    for key, value in (("topic", topic), *((k, header.get(k)) for k in ("type", "md5sum", "message_definition"))):
+        if value is None:
+            raise _Damaged(f"{what} (connection {conn}) has no {key!r}")
+        try:
+            value.decode()
+        except UnicodeDecodeError:
+            raise _Damaged(f"{what} (connection {conn}) has a {key!r} that is not UTF-8 text") from None
+    return conn, topic, [(k.encode("latin-1"), v) for k, v in header.items()]
+
+
+def _file_header(buf: Any, size: int) -> tuple[int, int, int, int]:
+    """(index_pos, conn_count, chunk_count, position of the first record after the file header)."""
+    if bytes(buf[:len(_MAGIC)]) != _MAGIC:
+        version = re.match(rb"#ROSBAG V(\d+\.\d+)\n", bytes(buf[:32]))
+        if version:
+            raise _Damaged(f"bag format {version.group(1).decode()} is not supported (only 2.0)")
+        raise _Damaged("not a ROS1 bag (it does not start with '#ROSBAG V2.0')")
+    what = "the file header"
+    fields, start, dlen = _record(buf, len(_MAGIC), size, what, _Truncated)
+    if _op(fields, what) != _OP_FILE_HEADER:
+        raise _Damaged(f"{what} is not a file header record")
+    if fields.get("encryptor"):
+        raise _Damaged(f"the bag is encrypted ({fields['encryptor'].decode('latin-1')}), which semmap cannot read")
+    return (_field(fields, "index_pos", _U64, what), _field(fields, "conn_count", _U32, what),
+            _field(fields, "chunk_count", _U32, what), start + dlen)
+
+
+def _chunk_record(buf: Any, pos: int, size: int, cut: type[_Damaged] = _Damaged) -> tuple[dict[str, bytes], int, int]:
+    """Header fields, data start and data length of the chunk record at ``pos``."""
+    what = f"the chunk at byte {pos}"
+    fields, start, dlen = _record(buf, pos, size, what, cut)
+    if _op(fields, what) != _OP_CHUNK:
+        raise _Damaged(f"the record at byte {pos} is not a chunk")
+    if dlen == 0:
+        raise cut(f"{what} was never finished (its data length is 0)")
+    if start + dlen > size:
+        raise cut(f"{what} needs {dlen} bytes of data, but the file ends at byte {size}")
+    return fields, start, dlen
+
+
+def _index_data(buf: Any, pos: int, size: int,
+                cut: type[_Damaged] = _Damaged) -> tuple[int, int, int, int, dict[str, bytes]]:
+    """(connection, count, entries start, data length as written, header fields) of an index data record.
+
+    The data length is not used, as ROS's reader does not use it (C Turtle's rosbag, before
+    1.1.15, wrote a wrong one): the entries are ``count`` x 12 bytes (time sec, nsec, offset).
+    """
+    what = f"the index data record at byte {pos}"
+    fields, start, dlen = _record(buf, pos, size, what, cut)
+    if _op(fields, what) != _OP_INDEX:
+        raise _Damaged(f"the record at byte {pos} is not index data")
+    if _field(fields, "ver", _U32, what) != 1:
+        raise _Damaged(f"{what} has an unknown version")
+    count = _field(fields, "count", _U32, what)
+    if start + 12 * count > size:
+        raise cut(f"{what} holds {count} entries, but the file ends at byte {size}")
+    return _field(fields, "conn", _U32, what), count, start, dlen, fields
+
+
+def _index_as_ros_reads(buf: Any, size: int, index_pos: int, conn_count: int, chunk_count: int) -> _Ros1Index:
+    """The bag's own index, read as ROS's reader reads it: fields in any order, unknown fields
+    skipped, the index data records' data length ignored. Raises :class:`_Damaged` when it does not
+    add up (the chunks are walked then), :class:`_Truncated` when the file ends before its index."""
+    if index_pos == 0:
+        raise _Damaged("it is not indexed: its recording was never closed")
+    if index_pos >= size:
+        raise _Truncated(f"bag is truncated: its index should start at byte {index_pos}, but the file ends "
+                         f"at byte {size}")
+    pos = index_pos
+    connections: dict[int, tuple[bytes, list[tuple[bytes, bytes]]]] = {}
+    for _ in range(conn_count):
+        what = f"the connection record at byte {pos}"
+        fields, start, dlen = _record(buf, pos, size, what)
+        if _op(fields, what) != _OP_CONNECTION:
+            raise _Damaged(f"its index holds {len(connections)} connection records, its file header says {conn_count}")
+        conn, topic, header = _connection(fields, buf, start, dlen, size, what)
+        connections.setdefault(conn, (topic, header))
+        pos = start + dlen
+    infos: list[tuple[int, int, dict[int, int]]] = []  # (chunk pos, end time, messages per connection)
+    for _ in range(chunk_count):
+        what = f"the chunk info record at byte {pos}"
+        fields, start, _dlen = _record(buf, pos, size, what)
+        if _op(fields, what) != _OP_CHUNK_INFO or _field(fields, "ver", _U32, what) != 1:
+            raise _Damaged(f"its index holds {len(infos)} chunk info records, its file header says {chunk_count}")
+        count = _field(fields, "count", _U32, what)
+        if start + 8 * count > size:
+            raise _Damaged(f"{what} is cut off")
+        pairs = np.frombuffer(buf[start:start + 8 * count], dtype="<u4").reshape(-1, 2)  # (a copy: the map closes)
+        infos.append((_field(fields, "chunk_pos", _U64, what), _field(fields, "end_time", _TIME, what),
+                      dict(zip(pairs[:, 0].tolist(), pairs[:, 1].tolist()))))
+        pos = start + 8 * count
+    chunks = []
+    quirks: dict[str, str] = {}
+    for chunk_pos, end_ns, counts in infos:
+        fields, start, dlen = _chunk_record(buf, chunk_pos, size)
+        unpacked = _field(fields, "size", _U32, f"the chunk at byte {chunk_pos}")
+        entries: dict[int, list[tuple[int, int]]] = {}
+        pos = start + dlen
+        for _ in range(len(counts)):
+            conn, count, at, written, fields = _index_data(buf, pos, size)
+            if written != 12 * count:
+                quirks["length"] = ("its index data records give a wrong data length (as C Turtle's rosbag, "
+                                    "before 1.1.15, wrote them; ROS's reader ignores it)")
+            if set(fields) - {"op", "ver", "conn", "count"}:
+                quirks["fields"] = "its index data records carry header fields besides op, ver, conn and count"
+            rows = np.frombuffer(buf[at:at + 12 * count], dtype="<u4").reshape(-1, 3).astype(np.int64)
+            times = rows[:, 0] * 1_000_000_000 + rows[:, 1]
+            if conn not in connections or counts.get(conn) != count or conn in entries or \
+                    (count and (rows[:, 2].max() >= unpacked or times.max() > end_ns)):
+                raise _Damaged(f"the index data record at byte {pos} does not match the chunk info of the chunk "
+                               f"at byte {chunk_pos}")
+            entries[conn] = list(zip(times.tolist(), rows[:, 2].tolist()))
+            pos = at + 12 * count
+        chunks.append(_Ros1Chunk(chunk_pos, start + dlen, entries))
+    return _Ros1Index(connections, chunks, "; ".join(quirks.values()))
+
+
+def _decompress(buf: Any, start: int, dlen: int, compression: bytes, what: str) -> Any:
+    """A chunk's records: its bytes, decompressed."""
+    from rosbags.rosbag1.reader import decompressors
+
+    if compression == b"none":
+        return buf[start:start + dlen]
+    func = decompressors.get(compression.decode("latin-1"))
+    if func is None:
+        raise _Damaged(f"{what} uses compression {compression.decode('latin-1')!r}, which semmap cannot read")
+    try:
+        return func(bytes(buf[start:start + dlen]))
+    except Exception as exc:  # noqa: BLE001 - bz2 raises OSError, lz4 RuntimeError, ...
+        raise _Damaged(f"{what} cannot be decompressed ({compression.decode('latin-1')}: {exc})") from None
+
+
+def _walk_chunk(data: Any, what: str,
+                connections: dict[int, tuple[bytes, list[tuple[bytes, bytes]]]]) -> dict[int, list[tuple[int, int]]]:
+    """The messages in a chunk's records, as ``rosbag reindex`` finds them; connection records are collected."""
+    entries: dict[int, list[tuple[int, int]]] = {}
+    at, end = 0, len(data)
+    while at < end:
+        where = f"the record at offset {at} of {what}"
+        fields, start, dlen = _record(data, at, end, where)
+        if start + dlen > end:
+            raise _Damaged(f"{where} is longer than its chunk")
+        op = _op(fields, where)
+        if op == _OP_CONNECTION:
+            conn, topic, header = _connection(fields, data, start, dlen, end, where)
+            connections.setdefault(conn, (topic, header))
+        elif op == _OP_MSG:
+            conn = _field(fields, "conn", _U32, where)
+            entries.setdefault(conn, []).append((_field(fields, "time", _TIME, where), at))
+        at = start + dlen
+    return entries
+
+
+def _is_record(buf: Any, pos: int, size: int) -> bool:
+    """Whether a record of a known kind starts at ``pos`` (or the file ends there)."""
+    if pos == size:
+        return True
+    try:
+        return _op(_record(buf, pos, size, "")[0], "") in (_OP_INDEX, _OP_CHUNK, _OP_CHUNK_INFO, _OP_CONNECTION)
+    except _Damaged:
+        return False
+
+
+def _index_from_chunks(buf: Any, size: int, first: int, index_pos: int, why: str) -> _Ros1Index:
+    """The index rebuilt by walking the chunks, as ``rosbag reindex`` does.
+
+    Records between chunks are skipped: index data by its ``count`` (or by its data length when only
+    that leads to the next record), the rest by their data length; connection records are collected
+    wherever they are (``rosbag record --split`` once wrote some only at the end). What follows the
+    last chunk of a closed bag (at ``index_pos``) is its old index, not needed: damage there ends the
+    walk. A bag that was never closed (``index_pos`` 0) keeps its complete chunks and loses an
+    unfinished last one, as with ``rosbag reindex``; a closed bag that ends early is truncated.
+    """
+    connections: dict[int, tuple[bytes, list[tuple[bytes, bytes]]]] = {}
+    chunks: list[_Ros1Chunk] = []
+    dropped = cut = ""
+    pos = first
+    while pos < size:
+        try:
+            what = f"the record at byte {pos}"
+            fields, start, dlen = _record(buf, pos, size, what, _Truncated)
+            op = _op(fields, what)
+            if op == _OP_CHUNK:
+                what = f"the chunk at byte {pos}"
+                fields, start, dlen = _chunk_record(buf, pos, size, _Truncated)
+                data = _decompress(buf, start, dlen, fields.get("compression", b"none"), what)
+                entries = _walk_chunk(data, what, connections)
+                if entries:
+                    chunks.append(_Ros1Chunk(pos, start + dlen, entries))
+                nxt = start + dlen
+            elif op == _OP_INDEX:
+                _, count, at, dlen, _ = _index_data(buf, pos, size, _Truncated)
+                nxt = at + 12 * count
+                if not _is_record(buf, nxt, size) and at + dlen <= size and _is_record(buf, at + dlen, size):
+                    nxt = at + dlen
+            elif op == _OP_CONNECTION:
+                conn, topic, header = _connection(fields, buf, start, dlen, size, f"the connection record at byte {pos}")
+                connections.setdefault(conn, (topic, header))
+                nxt = start + dlen
+            elif op in (_OP_MSG, _OP_FILE_HEADER):
+                raise _Damaged(f"{what} (op {op}) is out of place")
+            else:  # chunk info, or a kind of record this reader does not know: skipped, as ROS does
+                nxt = start + dlen
+            if nxt > size:
+                raise _Truncated(f"{what} is cut off (the file ends at byte {size})")
+            pos = nxt
+        except _Damaged as exc:
+            if chunks and first < index_pos <= pos:  # in the old index, after the last chunk
+                why = f"{why}; its old index is damaged too ({exc})"
+                break
+            if index_pos == 0 and isinstance(exc, _Truncated):
+                cut = str(exc)
+                dropped = f"; dropped its unfinished end from byte {pos}: {cut}"
+                break
+            raise _Truncated(f"bag is truncated: {exc}") if isinstance(exc, _Truncated) else \
+                _Damaged(f"bag is damaged: {exc}") from None
+    if dropped and not chunks:
+        raise _Truncated(f"bag is truncated: it was never closed, and no chunk in it is complete ({cut})")
+    for chunk in chunks:
+        for conn in chunk.entries:
+            if conn not in connections:
+                raise _Damaged(f"bag is damaged: the chunk at byte {chunk.pos} holds messages of connection {conn}, "
+                               f"which no connection record defines")
+    return _Ros1Index(connections, chunks, f"rebuilt its index from its chunks, as `rosbag reindex` would "
+                                           f"({why}{dropped})", rebuilt=True)
+
+
+def _ros1_index(p: Path, why: str, trust_index: bool = True) -> _Ros1Index:
+    """The index of the ROS1 bag ``p``, whose own index rosbags could not use (``why``): its own index
+    read by ROS's rules where that adds up (``trust_index``), else rebuilt from its chunks.
+    :class:`BagError` when the bag is damaged beyond that. The last few are kept."""
+    try:
+        st = p.stat()
+        if st.st_size == 0:
+            raise BagError(f"{p}: the file is empty, not a bag")
+        with p.open("rb") as f:
+            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except OSError as exc:
+        raise BagError(f"{p}: cannot read the bag ({exc.strerror or exc})") from None
+    key = (str(p.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+    cached = _REBUILT.get(key)
+    if cached is not None and (trust_index or cached.rebuilt):
+        buf.close()
+        return cached
+    try:
+        index_pos, conn_count, chunk_count, first = _file_header(buf, st.st_size)
+        index = None
+        if trust_index:
+            try:
+                index = _index_as_ros_reads(buf, st.st_size, index_pos, conn_count, chunk_count)
+            except _Truncated:
+                raise
+            except _Damaged as exc:
+                why = str(exc)
+        if index is None:
+            index = _index_from_chunks(buf, st.st_size, first, index_pos, why)
+        notes = [index.how] if index.rebuilt else [f"read its own index as ROS's reader does: {index.how}"] \
+            if index.how else []
+        if any(b"roslib/Header" in v for _, header in index.connections.values() for _, v in header):
+            notes.append("its message definitions name roslib/Header, read as std_msgs/Header (as genpy does)")
+        index.how = "; ".join(notes) or f"read its own index as ROS's reader does ({why})"
+    except _Damaged as exc:
+        msg = str(exc)
+        raise BagError(f"{p}: {msg if msg.startswith(('bag ', 'not ')) else 'bag is damaged: ' + msg}") from None
+    finally:
+        buf.close()
+    _REBUILT.pop(key, None)
+    while len(_REBUILT) >= _REBUILT_KEEP:
+        del _REBUILT[next(iter(_REBUILT))]
+    _REBUILT[key] = index
+    return index
+
+
+def _record_bytes(fields: list[tuple[bytes, bytes]], data: bytes) -> bytes:
+    head = b"".join(_U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in fields)
+    return _U32.pack(len(head)) + head + _U32.pack(len(data)) + data
+
+
+def _modern_definition(header: list[tuple[bytes, bytes]]) -> list[tuple[bytes, bytes]]:
+    """A connection header whose types name ``std_msgs/Header`` where it says ``roslib/Header`` (ROS
+    before 1.2; genpy maps it the same way, and the md5sums are the same)."""
+    return [(k, v.replace(b"roslib/Header", b"std_msgs/Header") if k in (b"message_definition", b"type") else v)
+            for k, v in header]
+
+
+def _time_bytes(ns: int) -> bytes:
+    return _TIME.pack(*divmod(ns, 1_000_000_000))
+
+
+def _view_parts(index: _Ros1Index) -> list[bytes | tuple[int, int]]:
+    """The bag as rosbags reads it: its chunks (ranges of the file, unchanged) each followed by
+    index data records, then the connection and chunk info records, behind a file header."""
+    chunk_part: list[bytes | tuple[int, int]] = []
+    chunk_at: list[int] = []
+    header_len = len(_record_bytes([(b"op", bytes([_OP_FILE_HEADER])), (b"index_pos", bytes(8)),
+                                    (b"conn_count", bytes(4)), (b"chunk_count", bytes(4))], b""))
+    at = len(_MAGIC) + header_len
+    for chunk in index.chunks:
+        chunk_at.append(at)
+        chunk_part.append((chunk.pos, chunk.end - chunk.pos))
+        at += chunk.end - chunk.pos
+        for conn, entries in sorted(chunk.entries.items()):
+            rows = np.array([(t // 1_000_000_000, t % 1_000_000_000, off) for t, off in entries], dtype="<u4")
+            rec = _record_bytes([(b"op", bytes([_OP_INDEX])), (b"ver", _U32.pack(1)), (b"conn", _U32.pack(conn)),
+                                 (b"count", _U32.pack(len(entries)))], rows.tobytes())
+            chunk_part.append(rec)
+            at += len(rec)
+    tail = bytearray()
+    for conn, (topic, header) in sorted(index.connections.items()):
+        data = b"".join(_U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in _modern_definition(header))
+        tail += _record_bytes([(b"op", bytes([_OP_CONNECTION])), (b"conn", _U32.pack(conn)), (b"topic", topic)], data)
+    for chunk, pos in zip(index.chunks, chunk_at):
+        times = [t for entries in chunk.entries.values() for t, _ in entries]
+        pairs = b"".join(_U32.pack(c) + _U32.pack(len(e)) for c, e in sorted(chunk.entries.items()))
+        tail += _record_bytes([(b"op", bytes([_OP_CHUNK_INFO])), (b"ver", _U32.pack(1)), (b"chunk_pos", _U64.pack(pos)),
+                               (b"start_time", _time_bytes(min(times))), (b"end_time", _time_bytes(max(times))),
+                               (b"count", _U32.pack(len(chunk.entries)))], pairs)
+    header = _record_bytes([(b"op", bytes([_OP_FILE_HEADER])), (b"index_pos", _U64.pack(at)),
+                            (b"conn_count", _U32.pack(len(index.connections))),
+                            (b"chunk_count", _U32.pack(len(index.chunks)))], b"")
+    return [_MAGIC + header, *chunk_part, bytes(tail)]
+
+
+class _SplicedFile(io.RawIOBase):
+    """A read-only file made of ranges of a real file and bytes held in memory."""
+
+    def __init__(self, path: Path, parts: Sequence[bytes | tuple[int, int]]) -> None:
+        super().__init__()
+        self._fd = os.open(path, os.O_RDONLY)
+        self._parts: list[tuple[int, bytes | tuple[int, int]]] = []
+        at = 0
+        for part in parts:
+            size = len(part) if isinstance(part, bytes) else part[1]
+            if size > 0:
+                self._parts.append((at, part))
+                at += size
+        self._starts = [s for s, _ in self._parts]
+        self._size = at
+        self._pos = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
+        if base + offset < 0:
+            raise OSError(22, "negative seek position")
+        self._pos = base + offset
+        return self._pos
+
+    def readinto(self, b: Any) -> int:
+        out = memoryview(b).cast("B")
+        done = 0
+        while done < len(out) and self._pos < self._size:
+            i = bisect.bisect_right(self._starts, self._pos) - 1
+            start, part = self._parts[i]
+            inside = self._pos - start
+            if isinstance(part, bytes):
+                chunk = part[inside:inside + len(out) - done]
+            else:
+                chunk = os.pread(self._fd, min(part[1] - inside, len(out) - done), part[0] + inside)
+                if not chunk:
+                    raise OSError(5, "the bag changed while it was read")
+            out[done:done + len(chunk)] = chunk
+            done += len(chunk)
+            self._pos += len(chunk)
+        return done
+
+    def close(self) -> None:
+        if not self.closed:
+            os.close(self._fd)
+        super().close()
+
+
+class _RebuiltBagPath:
+    """A ROS1 bag seen through a rebuilt index, for rosbags' reader (its ``RPath`` protocol): its
+    chunks are read from the bag itself; nothing is written anywhere."""
+
+    suffix = ".bag"
+
+    def __init__(self, path: Path, index: _Ros1Index) -> None:
+        self.path = path
+        self.name, self.stem = path.name, path.stem
+        self.rebuilt = index.rebuilt
+        self._parts = _view_parts(index)
+
+    def exists(self) -> bool:
+        return True
+
+    def is_dir(self) -> bool:
+        return False
+
+    def open(self, mode: str = "rb", *args: Any, **kwargs: Any) -> io.BufferedReader:
+        if mode != "rb":
+            raise OSError(f"{self.path}: a rebuilt view of a bag opens read-only")
+        return io.BufferedReader(_SplicedFile(self.path, self._parts), buffer_size=64 * 1024)
+
+    def stat(self, *, follow_symlinks: bool = True) -> os.stat_result:
+        st = self.path.stat()
+        size = sum(len(part) if isinstance(part, bytes) else part[1] for part in self._parts)
+        return os.stat_result((st.st_mode, st.st_ino, st.st_dev, st.st_nlink, st.st_uid, st.st_gid, size,
+                               int(st.st_atime), int(st.st_mtime), int(st.st_ctime)))
+
+    def read_text(self, encoding: str | None = None) -> str:
+        raise OSError(f"{self.path}: a bag is not text")
+
+    def __truediv__(self, key: object) -> Path:
+        return self.path / str(key)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def __repr__(self) -> str:
+        return f"_RebuiltBagPath({str(self.path)!r})"
+
+
+def _describe(exc: BaseException) -> str:
+    """What an exception from a bag reading library says is wrong with the bag, in words (one line)."""
+    text = " ".join(str(exc).split())
+    if len(text) > 240:
+        text = text[:240] + "..."
+    if type(exc).__name__ == "TypesysError":
+        return f"a message definition in it cannot be parsed ({text})"
+    if isinstance(exc, AssertionError):
+        return "its records do not match its index" + (f" ({text})" if text else "")
+    if isinstance(exc, UnicodeDecodeError):
+        return "a name or message definition in it is not UTF-8 text"
+    if isinstance(exc, struct.error):
+        return f"a record in it is cut short or malformed ({text})"
+    if isinstance(exc, IndexError):
+        return "a record in it points past the end of its data" + (f" ({text})" if text else "")
+    if isinstance(exc, KeyError):
+        return f"it refers to a connection, channel or schema it does not define ({text})"
+    if isinstance(exc, MemoryError | OverflowError):
+        return "a record in it claims an impossible size"
+    if type(exc).__module__.split(".")[0] in ("zlib", "zstandard", "lz4", "_bz2", "bz2", "_lzma"):
+        return f"a compressed chunk in it cannot be decompressed ({text or type(exc).__name__})"
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return text or f"it cannot be read ({type(exc).__name__})"
+
+
+def _is_ros1(p: Path) -> bool:
+    return p.is_file() and p.suffix == ".bag"
+
+
+def _index_adds_up(reader: Any) -> bool:
+    """Whether a ROS1 bag's index data holds as many messages as its chunk infos count."""
+    try:
+        bag = reader.readers[0]
+        counted: dict[int, int] = {}
+        for info in bag.chunk_infos:
+            for conn, n in info.connection_counts.items():
+                counted[conn] = counted.get(conn, 0) + n
+        return all(len(bag.indexes.get(c.id, ())) == counted.get(c.id, 0) for c in bag.connections)
+    except (AttributeError, IndexError, TypeError):  # a rosbags that lays out its index differently
+        return True
+
+
+def _open_rebuilt(p: Path, why: str, trust_index: bool = True) -> Any:
+    """rosbags' reader on a ROS1 bag whose own index it could not use (``why``), through the index as ROS
+    reads it or rebuilt from the chunks (:func:`_ros1_index`); roslib/Header is read as std_msgs/Header."""
+    from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    p = resolve_bag_path(path)
+    index = _ros1_index(p, why, trust_index)
+    log.info("%s: %s", p, index.how)
+    try:
+        reader = AnyReader([_RebuiltBagPath(p, index)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))  # type: ignore[list-item]
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - whatever rosbags raises, the user gets one line naming the file
+        if not index.rebuilt:  # the connection records inside the chunks may be whole where the index's are not
+            log.debug("%s: cannot read it through its own index either (%r)", p, exc)
+            return _open_rebuilt(p, f"reading through its own index failed: {_describe(exc)}", trust_index=False)
+        raise BagError(f"{p}: cannot open bag ({_describe(exc)})") from None
+    return reader
+
+
+def _open_reader(p: Path) -> Any:
+    """rosbags' ``AnyReader`` on the bag ``p``, opened; :class:`BagError` when it cannot be read."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
     try:
         reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (AnyReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{p}: cannot open bag ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - rosbags lets AssertionError, struct.error... escape
+        if not _is_ros1(p):
+            raise BagError(f"{p}: cannot open bag ({_describe(exc)})") from None
+        log.debug("%s: rosbags cannot open it (%r); reading it as ROS does", p, exc)
+        return _open_rebuilt(p, f"rosbags could not: {_describe(exc)}")
+    if _is_ros1(p) and not _index_adds_up(reader):
+        reader.close()
+        return _open_rebuilt(p, "its index data and chunk infos count different messages", trust_index=False)
+    return reader
+
+
+def _rebuilt_index_note(path: str | Path) -> str | None:
+    """How semmap reads a ROS1 bag whose own index rosbags cannot use (None for any other bag)."""
+    p = resolve_bag_path(path)
+    if not _is_ros1(p):
+        return None
+    st = p.stat()
+    index = _REBUILT.get((str(p.resolve()), st.st_size, st.st_mtime_ns, st.st_ino))
+    return None if index is None else index.how
+
+
+@contextmanager
+def open_bag(path: str | Path) -> Iterator[Any]:
+    """Open a bag with rosbags' ``AnyReader``; errors become :class:`BagError`.
+
+    A ROS1 bag whose index rosbags cannot use (a 2010-era bag with wrong index data lengths, a bag
+    never closed, a damaged index) is read through its index as ROS's own reader reads it, or
+    through an index rebuilt from its chunks as ``rosbag reindex`` would (in memory; nothing is
+    written). Message definitions naming ``roslib/Header`` are read as ``std_msgs/Header``.
+    """
+    p = resolve_bag_path(path)
+    reader = _open_reader(p)
     try:
         yield reader
     finally:
-        reader.close()
+        try:
+            reader.close()
+        except Exception:  # noqa: BLE001 - closing a damaged bag; the reading error (if any) says more
+            log.debug("closing %s failed", p, exc_info=True)
 
 
 @dataclass(frozen=True)
@@ -423,6 +1048,8 @@ class BagInfo:
     end_ns: int | None
     message_count: int
     topics: tuple[TopicInfo, ...] = field(default_factory=tuple)
+    #: how a ROS1 bag whose own index rosbags cannot use was read (None: through its own index)
+    index_note: str | None = None
 
     @property
     def duration_s(self) -> float:
@@ -446,6 +1073,7 @@ class BagInfo:
             "duration_s": round(self.duration_s, 6),
             "message_count": self.message_count,
             "topics": [t.as_dict() for t in self.topics],
+            **({"index_note": self.index_note} if self.index_note else {}),
         }
 
 
@@ -465,36 +1093,59 @@ def _size(p: Path) -> int:
     return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
 
 
+def _rebuilt_from_chunks(reader: Any) -> bool:
+    """Whether ``reader`` reads a ROS1 bag through an index rebuilt from its chunks."""
+    paths = getattr(reader, "paths", ())
+    return bool(paths) and isinstance(paths[0], _RebuiltBagPath) and paths[0].rebuilt
+
+
+def _unreadable(p: Path, exc: BaseException) -> BagError:
+    return BagError(f"{p}: bag is unreadable or truncated ({_describe(exc)})")
+
+
+def _summary(reader: Any) -> tuple[dict[str, str], dict[str, int], dict[str, int], dict[str, int]]:
+    """Topic types, message counts and first and last bag times, from reading every message's record."""
+    names: dict[str, str] = {}
+    for conn in reader.connections:
+        names.setdefault(conn.topic, conn.msgtype)
+    counts = dict.fromkeys(names, 0)
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for conn, t_ns, _raw in reader.messages():
+        topic = conn.topic
+        counts[topic] += 1
+        if topic not in first or t_ns < first[topic]:
+            first[topic] = t_ns
+        if topic not in last or t_ns > last[topic]:
+            last[topic] = t_ns
+    return names, counts, first, last
+
+
 def bag_info(path: str | Path) -> BagInfo:
     """Topics, message types, counts, rates and the time span of a bag.
 
     Works on ROS1 ``.bag`` and ROS2 sqlite3/mcap bags, including bags written by ROS
-    itself. Counts and spans come from reading every message's bag timestamp.
+    itself. Counts and spans come from reading every message's bag timestamp. A ROS1 bag whose
+    index does not lead to its messages is read through an index rebuilt from its chunks.
     """
-    from rosbags.highlevel import AnyReaderError
-
     p = resolve_bag_path(path)
+    failure: Exception | None = None
     with open_bag(p) as reader:
-        names: dict[str, str] = {}
-        for conn in reader.connections:
-            names.setdefault(conn.topic, conn.msgtype)
-        counts = dict.fromkeys(names, 0)
-        first: dict[str, int] = {}
-        last: dict[str, int] = {}
         try:
-            for conn, t_ns, _raw in reader.messages():
-                topic = conn.topic
-                counts[topic] += 1
-                if topic not in first or t_ns < first[topic]:
-                    first[topic] = t_ns
-                if topic not in last or t_ns > last[topic]:
-                    last[topic] = t_ns
+            names, counts, first, last = _summary(reader)
         except Exception as exc:  # noqa: BLE001 - rosbags raises a different error per storage
-            if isinstance(exc, AnyReaderError | OSError | ValueError | KeyError | EOFError) or (
-                type(exc).__module__.startswith("rosbags")
-            ):
-                raise BagError(f"{p}: bag is unreadable or truncated ({exc})") from None
-            raise
+            failure = exc
+            if not _is_ros1(p) or _rebuilt_from_chunks(reader):
+                raise _unreadable(p, exc) from None
+    if failure is not None:
+        log.debug("%s: reading through its index failed (%r); rebuilding it from the chunks", p, failure)
+        reader = _open_rebuilt(p, f"reading through its own index failed: {_describe(failure)}", trust_index=False)
+        try:
+            names, counts, first, last = _summary(reader)
+        except Exception as exc:  # noqa: BLE001
+            raise _unreadable(p, exc) from None
+        finally:
+            reader.close()
     topics = tuple(
         TopicInfo(n, names[n], counts[n], first.get(n), last.get(n)) for n in sorted(names)
     )
@@ -507,6 +1158,7 @@ def bag_info(path: str | Path) -> BagInfo:
         end_ns=max(last.values()) if last else None,
         message_count=total,
         topics=topics,
+        index_note=_rebuilt_index_note(p),
     )
 
 
@@ -727,22 +1379,54 @@ def iter_messages(path: str | Path, topics: Sequence[str], stats: ReadStats | No
         yield from _stream(opened, p, topics, stats)
 
 
-def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> Iterator[tuple[str, int, Any]]:
-    from rosbags.highlevel import AnyReaderError
-
-    conns = [c for c in reader.connections if c.topic in set(topics)]
+def _deserialize(reader: Any, p: Path, conn: Any, raw: Any, stats: ReadStats) -> Any:
+    """The message, or None (counted in ``stats.skipped``) when its bytes do not fit its type."""
     try:
-        records = (_ros1_records(reader, conns) or _mcap_records(reader, conns)) if conns else None
+        msg = reader.deserialize(raw, conn.msgtype)
+    except Exception as exc:  # noqa: BLE001 - rosbags' generated deserialisers raise many kinds of errors
+        stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
+        log.debug("%s: skipped a message on %s (%s)", p, conn.topic, _describe(exc))
+        return None
+    stats.read[conn.topic] = stats.read.get(conn.topic, 0) + 1
+    return msg
+
+
+def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> Iterator[tuple[str, int, Any]]:
+    wanted = set(topics)
+    conns = [c for c in reader.connections if c.topic in wanted]
+    if not conns:
+        return
+    last: int | None = None  # bag time of the last record read, and how many records were read at that time
+    at_last = 0
+    try:
+        records = _ros1_records(reader, conns) or _mcap_records(reader, conns)
         for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except (AnyReaderError, ValueError, IndexError, KeyError) as exc:
-                stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
-                log.debug("%s: skipped a message on %s (%s)", p, conn.topic, exc)
-                continue
-            stats.read[conn.topic] = stats.read.get(conn.topic, 0) + 1
-            yield conn.topic, t_ns, msg
-    except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
-        if isinstance(exc, AnyReaderError | OSError | EOFError) or type(exc).__module__.startswith("rosbags"):
-            raise BagError(f"{p}: bag is unreadable or truncated ({exc})") from None
+            last, at_last = (t_ns, at_last + 1) if t_ns == last else (t_ns, 1)
+            msg = _deserialize(reader, p, conn, raw, stats)
+            if msg is not None:
+                yield conn.topic, t_ns, msg
+        return
+    except SemmapError:
         raise
+    except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
+        failure = exc
+    if not _is_ros1(p) or _rebuilt_from_chunks(reader):
+        raise _unreadable(p, failure)
+    # a ROS1 bag whose index does not lead to its messages: go on through an index rebuilt from its chunks
+    log.debug("%s: reading through its index failed (%r); rebuilding it from the chunks", p, failure)
+    rebuilt = _open_rebuilt(p, f"reading through its own index failed: {_describe(failure)}", trust_index=False)
+    try:
+        conns = [c for c in rebuilt.connections if c.topic in wanted]
+        for conn, t_ns, raw in rebuilt.messages(connections=conns) if conns else ():  # (none: rosbags reads all)
+            if last is not None and (t_ns < last or (t_ns == last and at_last > 0)):
+                at_last -= t_ns == last  # read before the failure
+                continue
+            msg = _deserialize(rebuilt, p, conn, raw, stats)
+            if msg is not None:
+                yield conn.topic, t_ns, msg
+    except SemmapError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise _unreadable(p, exc) from None
+    finally:
+        rebuilt.close()

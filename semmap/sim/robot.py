@@ -4,11 +4,14 @@ The route is a polyline of waypoints. Corners are rounded with circular fillets;
 near-U-turns become a stop and a turn in place, as a differential-drive base
 does. Speed respects the robot's linear, lateral and yaw-rate limits, with
 trapezoidal acceleration. :func:`check_clearance` proves the tour collision-free.
+A long tour drives the route for several laps (``World.laps``), waiting between laps
+until the people are out of the way.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -18,7 +21,7 @@ from numpy.typing import NDArray
 from ..config import SimOdometryConfig, SimRobotConfig
 from ..errors import SimulationError
 from ..geometry import se2_between, se2_compose, wrap_angle
-from .world import World
+from .world import Person, World
 
 __all__ = ["Trajectory", "plan_tour", "check_clearance", "simulate_odometry", "OdometryTrace"]
 
@@ -173,8 +176,87 @@ def _turn_profile(h0: float, h1: float, cfg: SimRobotConfig) -> tuple[NDArray[np
     return t, h0 + math.copysign(1.0, h1 - h0) * s
 
 
+#: a lap after the first waits at the route's end, in steps of this, until people keep clear of it
+_LAP_WAIT_STEP_S = 1.0
+_LAP_WAIT_MAX_S = 300.0
+#: how far (m) people must keep from the robot's footprint during a lap after the first
+_LAP_PEOPLE_GAP_M = 0.1
+_PEOPLE_STEP_S = 0.05  # time step of the people checks
+
+
+def _drive(pieces: list[tuple[str, NDArray[np.float64]]], cfg: SimRobotConfig, t0: float, x_prev: float,
+           y_prev: float, h_prev: float, emit: Callable[..., None]) -> tuple[float, float, float, float]:
+    """Time the pieces one after another from ``t0`` and the pose (x, y, unwrapped heading); the end state."""
+    for kind, data in pieces:
+        if kind == "move":
+            tt = _time_move(data, cfg)
+            # unwrap headings continuously from the previous piece
+            h = h_prev + np.unwrap(data[:, 2] - data[0, 2]) + float(wrap_angle(data[0, 2] - h_prev))
+            emit(t0 + tt[1:], data[1:, 0], data[1:, 1], h[1:])
+            t0 += float(tt[-1])
+            h_prev, x_prev, y_prev = float(h[-1]), float(data[-1, 0]), float(data[-1, 1])
+        else:
+            delta = float(wrap_angle(data[1] - data[0]))
+            tt, hh = _turn_profile(h_prev, h_prev + delta, cfg)
+            emit(t0 + tt[1:], np.full(len(tt) - 1, x_prev), np.full(len(tt) - 1, y_prev), hh[1:])
+            t0 += float(tt[-1])
+            h_prev = h_prev + delta
+    return t0, x_prev, y_prev, h_prev
+
+
+def _footprint_gap(poses: NDArray[np.float64], xy: NDArray[np.float64], cfg: SimRobotConfig,
+                   person: Person) -> NDArray[np.float64]:
+    """Distance (m) from a person's body disc at ``xy`` (..., 2) to the robot footprint at ``poses`` (..., 3)."""
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    dx, dy = xy[..., 0] - poses[..., 0], xy[..., 1] - poses[..., 1]
+    lx, ly = c * dx + s * dy, -s * dx + c * dy
+    ox = np.maximum(np.abs(lx) - cfg.length / 2, 0.0)
+    oy = np.maximum(np.abs(ly) - cfg.width / 2, 0.0)
+    return np.hypot(ox, oy) - (person.hip_half_width + person.leg_radius)
+
+
+def _lap_wait(world: World, lap: Trajectory, stand: NDArray[np.float64], t_now: float, lap_no: int,
+              cfg: SimRobotConfig) -> float:
+    """How long the robot, standing at ``stand`` from ``t_now``, waits before driving ``lap`` (times from
+    0), so that people keep ``_LAP_PEOPLE_GAP_M`` from it while it waits and drives (they do not yield).
+
+    The first lap of every scenario is tuned against its people; later laps meet them at other
+    times, and a few seconds' wait puts the robot between them again.
+    """
+    if not world.people:
+        return 0.0
+    step = int(round(_LAP_WAIT_STEP_S / _PEOPLE_STEP_S))
+    n_wait = int(round(_LAP_WAIT_MAX_S / _LAP_WAIT_STEP_S))
+    n_lap = int(math.ceil(lap.duration / _PEOPLE_STEP_S)) + 1
+    k = np.arange(n_wait * step + n_lap)
+    times = t_now + k * _PEOPLE_STEP_S
+    lap_poses = lap.pose(np.arange(n_lap) * _PEOPLE_STEP_S)
+    lap_gap = np.full((n_wait + 1, n_lap), np.inf)  # per candidate wait, per lap sample
+    stand_gap = np.full(len(k), np.inf)
+    for p in world.people:
+        xy = np.array([p.state(float(t))[:2] for t in times])
+        stand_gap = np.minimum(stand_gap, _footprint_gap(stand, xy, cfg, p))
+        # candidate w starts the lap at sample w * step: gather those windows
+        idx = (np.arange(n_wait + 1) * step)[:, None] + np.arange(n_lap)[None, :]
+        lap_gap = np.minimum(lap_gap, _footprint_gap(lap_poses[None, :, :], xy[idx], cfg, p))
+    stand_min = np.minimum.accumulate(stand_gap)  # the closest approach while waiting up to each sample
+    for w in range(n_wait + 1):
+        waited = stand_min[w * step] if w > 0 else np.inf
+        if min(waited, float(lap_gap[w].min())) > _LAP_PEOPLE_GAP_M:
+            return w * _LAP_WAIT_STEP_S
+    raise SimulationError(f"world {world.name}: no wait up to {_LAP_WAIT_MAX_S:.0f} s keeps lap {lap_no} "
+                          f"{_LAP_PEOPLE_GAP_M} m clear of the people walking there")
+
+
 def plan_tour(world: World, cfg: SimRobotConfig) -> Trajectory:
-    """A smooth, time-parameterised tour along the world's route."""
+    """A smooth, time-parameterised tour along the world's route.
+
+    With ``world.laps`` > 1 the robot drives the route again and again: at the end of a lap it
+    stands, drives straight back to the route's first waypoint (turning in place where the
+    headings differ) and on into the next lap. Before each lap after the first it waits, whole
+    seconds, until that lap keeps clear of the people (who walk their own loops and do not
+    yield), so every lap is as collision-free as the first.
+    """
     route = world.route
     if route.shape[0] < 2:
         raise SimulationError(f"world {world.name}: the robot route needs at least two waypoints")
@@ -207,20 +289,32 @@ def plan_tour(world: World, cfg: SimRobotConfig) -> Trajectory:
         emit(t0 + tt[1:], np.full(len(tt) - 1, x_prev), np.full(len(tt) - 1, y_prev), hh[1:])
         t0 += float(tt[-1])
         h_prev = start + delta
-    for kind, data in pieces:
-        if kind == "move":
-            tt = _time_move(data, cfg)
-            # unwrap headings continuously from the previous piece
-            h = h_prev + np.unwrap(data[:, 2] - data[0, 2]) + float(wrap_angle(data[0, 2] - h_prev))
-            emit(t0 + tt[1:], data[1:, 0], data[1:, 1], h[1:])
-            t0 += float(tt[-1])
-            h_prev, x_prev, y_prev = float(h[-1]), float(data[-1, 0]), float(data[-1, 1])
-        else:
-            delta = float(wrap_angle(data[1] - data[0]))
-            tt, hh = _turn_profile(h_prev, h_prev + delta, cfg)
-            emit(t0 + tt[1:], np.full(len(tt) - 1, x_prev), np.full(len(tt) - 1, y_prev), hh[1:])
-            t0 += float(tt[-1])
-            h_prev = h_prev + delta
+    t0, x_prev, y_prev, h_prev = _drive(pieces, cfg, t0, x_prev, y_prev, h_prev, emit)
+    if world.laps > 1:
+        again = _fillet_path(np.concatenate([route[-1:], route]), cfg)  # back to the start, then the route
+        head = float(again[0][1][0, 2])
+        for lap_no in range(2, world.laps + 1):
+            if world.duration_s is not None and t0 >= world.duration_s:
+                break  # the tour is cut before this lap
+            lap_pieces = list(again)
+            if abs(float(wrap_angle(head - h_prev))) > 1e-6:  # a closed route: turn in place first
+                lap_pieces.insert(0, ("turn", np.array([h_prev, head])))
+            lt: list[list[NDArray[np.float64]]] = [[np.zeros(1)], [np.full(1, x_prev)], [np.full(1, y_prev)],
+                                                   [np.full(1, h_prev)]]
+
+            def emit_lap(t: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64],
+                         h: NDArray[np.float64], lt: list[list[NDArray[np.float64]]] = lt) -> None:
+                for acc, v in zip(lt, (t, x, y, h)):
+                    acc.append(v)
+
+            _, x_end, y_end, h_end = _drive(lap_pieces, cfg, 0.0, x_prev, y_prev, h_prev, emit_lap)
+            lap = Trajectory(*(np.concatenate(a) for a in lt))
+            wait = _lap_wait(world, lap, np.array([x_prev, y_prev, h_prev]), t0, lap_no, cfg)
+            if wait > 0:
+                emit(np.array([t0 + wait]), np.array([x_prev]), np.array([y_prev]), np.array([h_prev]))
+            emit(t0 + wait + lap.t[1:], lap.x[1:], lap.y[1:], lap.yaw[1:])
+            t0 += wait + lap.duration
+            x_prev, y_prev, h_prev = x_end, y_end, h_end
     end = max(t0 + cfg.settle_s, world.duration_s or 0.0)
     emit(np.array([end]), np.array([x_prev]), np.array([y_prev]), np.array([h_prev]))
     t = np.concatenate(ts)
@@ -321,15 +415,9 @@ def people_clearance(world: World, traj: Trajectory, cfg: SimRobotConfig,
         return best
     t = np.arange(0.0, traj.duration, step_s)
     poses = traj.pose(t)
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     for p in world.people:
         xy = np.array([p.state(float(ti))[:2] for ti in t])
-        # the person's centre in the robot frame, then distance to the footprint rectangle
-        dx, dy = xy[:, 0] - poses[:, 0], xy[:, 1] - poses[:, 1]
-        lx, ly = c * dx + s * dy, -s * dx + c * dy
-        ox = np.maximum(np.abs(lx) - cfg.length / 2, 0.0)
-        oy = np.maximum(np.abs(ly) - cfg.width / 2, 0.0)
-        d = np.hypot(ox, oy) - (p.hip_half_width + p.leg_radius)
+        d = _footprint_gap(poses, xy, cfg, p)  # the person's body disc to the footprint rectangle
         k = int(np.argmin(d))
         if d[k] < best[0]:
             best = (float(d[k]), float(t[k]), p.name)

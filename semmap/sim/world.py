@@ -8,6 +8,10 @@ a seat and a back, so at LiDAR height it is only its legs, as in real tours.
 People are dynamic: they walk waypoint loops at their own speed, pause, or stand
 still for the whole tour. Their legs swing while they walk.
 
+The robot drives the world's route once, or ``laps`` times for a long tour (see
+:func:`semmap.sim.robot.plan_tour`); ``duration_s`` cuts the tour short or holds the
+robot still at its end.
+
 The world is written beside every simulated bag as ``world.yaml`` and can be
 read back with :func:`load_world` (``semmap simulate --scenario my_world.yaml``).
 """
@@ -289,8 +293,11 @@ class World:
     ceiling_height: float = 2.6
     frame_id: str = "world"
     description: str = ""
+    laps: int = 1  # times the robot drives the route; between laps it returns to the route's start
 
     def __post_init__(self) -> None:
+        if isinstance(self.laps, bool) or not isinstance(self.laps, (int, np.integer)) or self.laps < 1:
+            raise ConfigError(f"world {self.name}: laps must be a whole number of at least 1, got {self.laps!r}")
         r = np.array(self.route, dtype=np.float64).reshape(-1, 2)
         r.setflags(write=False)
         object.__setattr__(self, "route", r)
@@ -446,6 +453,7 @@ def world_to_dict(world: World) -> dict[str, Any]:
         "ceiling_height": r(world.ceiling_height),
         "start_yaw": None if world.start_yaw is None else r(world.start_yaw),
         "duration_s": None if world.duration_s is None else r(world.duration_s),
+        "laps": int(world.laps),
         "route": [[r(x), r(y)] for x, y in world.route],
         "objects": [
             {
@@ -485,7 +493,7 @@ def world_from_dict(data: Any, source: str = "<world>") -> World:
     """Build a :class:`World` from a dict as written by :func:`world_to_dict`."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a world file must be a mapping")
-    allowed = {"name", "description", "frame_id", "ceiling_height", "start_yaw", "duration_s",
+    allowed = {"name", "description", "frame_id", "ceiling_height", "start_yaw", "duration_s", "laps",
                "route", "objects", "people"}
     unknown = set(data) - allowed
     if unknown:
@@ -524,6 +532,9 @@ def world_from_dict(data: Any, source: str = "<world>") -> World:
                 raise ConfigError(f"{source}: people[{i}]: malformed ({exc!r})") from None
         sy = data.get("start_yaw")
         dur = data.get("duration_s")
+        laps = data.get("laps", 1)
+        if isinstance(laps, float) and laps.is_integer():
+            laps = int(laps)
         return World(
             name=str(data.get("name", "world")),
             description=str(data.get("description", "")),
@@ -531,6 +542,7 @@ def world_from_dict(data: Any, source: str = "<world>") -> World:
             ceiling_height=float(data.get("ceiling_height", 2.6)),
             start_yaw=None if sy is None else float(sy),
             duration_s=None if dur is None else float(dur),
+            laps=laps,
             route=np.asarray(data.get("route") or np.zeros((0, 2)), dtype=np.float64),
             objects=tuple(objects),
             people=tuple(people),

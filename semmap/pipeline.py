@@ -425,6 +425,9 @@ def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, pipe: _Pipeline) -> None
     n = pipe.counts["scans"]
     with_image = n - pipe.counts["scans_without_image"]
     frames = pipe.frame_counts.get("frames", 0)
+    log.info("%d of %d scans were paired with an image (%d frames read on %s); %.1f %% of their returns fell "
+             "into the image", with_image, n, frames, tinfo.topics.frames,
+             100 * ps.points_in_view / max(ps.points_paired, 1))
     if with_image < 0.1 * n:
         if frames == 0:
             why = f"no frame on {tinfo.topics.frames} could be read or segmented"

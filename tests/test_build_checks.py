@@ -96,3 +96,47 @@ def test_config_yaml_rebuilds_the_same_map(tour, with_file, tmp_path):
     assert np.array_equal(a["log_odds"], b["log_odds"]) and np.array_equal(a["mobility"], b["mobility"])
     assert (with_file.out / "map.pgm").read_bytes() == (again.out / "map.pgm").read_bytes()
     assert json.loads((again.out / "summary.json").read_text())["tour"]["topics"]["frames"] == "/camera/labels"
+
+
+def test_absurd_grid_memory_is_refused_before_any_work(tour, tmp_path, capsys):
+    import time
+
+    from semmap.cli.main import main
+
+    cfg = tmp_path / "fine.yaml"
+    cfg.write_text("grid:\n  resolution: 0.0001\n")
+    t0 = time.perf_counter()
+    assert main(["build", str(tour.out), "--config", str(cfg), "--out", str(tmp_path / "m")]) == 2
+    assert time.perf_counter() - t0 < 5
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "grid.resolution 0.0001 m" in err and "needs" in err and "TiB" in err
+    assert not (tmp_path / "m").exists() and not list(tmp_path.glob(".m.*"))
+
+
+def test_verbose_says_what_was_detected_and_hides_other_libraries_debug(tour, tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "semmap", "build", str(tour.out), "--out", str(tmp_path / "m"),
+                          "-vv", "-q"], capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr
+    err = res.stderr
+    assert "scans /scan (frame laser), odometry /odom, label images /camera/labels" in err
+    assert "T_base_lidar (base_link -> laser) from the transform chain base_link -> laser" in err
+    assert f"calibration {tour.out / 'calibration.yaml'}" in err
+    assert "scans were paired with an image" in err
+    assert "DEBUG semmap." in err  # -vv: semmap's own debug lines
+    assert not [line for line in err.splitlines() if line.startswith("DEBUG") and " semmap." not in line]
+
+
+def test_report_and_cli_state_how_registration_went(tour, with_file, tmp_path, capsys):
+    from semmap.cli.main import main
+
+    report = (with_file.out / "report.md").read_text()
+    assert "ICP results used" in report and "rejected by the filter's gate" in report
+    assert "the filter restarted" in report
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("workers: false\n")
+    assert main(["build", str(tour.out), "--config", str(cfg), "--out", str(tmp_path / "m")]) == 0
+    out = capsys.readouterr().out
+    assert "ICP results used" in out and "rejected by the filter's gate" in out and "filter restarted" in out

@@ -19,9 +19,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
+from array import array
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -71,11 +72,30 @@ class _Timers:
         return {k: round(v, 3) for k, v in self.__dict__.items()}
 
 
-@dataclass
 class _Trace:
-    stamps: list[int] = field(default_factory=list)
-    odom: list[NDArray[np.float64] | None] = field(default_factory=list)
-    poses: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # filled at the end
+    """Per scan: its stamp and the odometry pose at it, kept compactly (32 bytes a scan), and the map-frame
+    poses registration returns at the end."""
+
+    def __init__(self) -> None:
+        self._stamps = array("q")
+        self._odom = array("d")  # x, y, yaw per scan; NaN where there was no odometry
+        self.poses: NDArray[np.float64] = np.zeros((0, 3))
+
+    def add(self, stamp_ns: int, odom_pose: NDArray[np.float64] | None) -> None:
+        self._stamps.append(stamp_ns)
+        self._odom.extend(_NO_ODOM if odom_pose is None else odom_pose.tolist())
+
+    @property
+    def stamps(self) -> NDArray[np.int64]:
+        return np.frombuffer(self._stamps, np.int64) if self._stamps else np.zeros(0, np.int64)
+
+    @property
+    def odom(self) -> NDArray[np.float64]:
+        """(N, 3); rows of NaN where the scan had no odometry."""
+        return np.frombuffer(self._odom, np.float64).reshape(-1, 3) if self._odom else np.zeros((0, 3))
+
+
+_NO_ODOM = (float("nan"),) * 3
 
 
 class _Pipeline:
@@ -190,8 +210,7 @@ class _Pipeline:
         if self.odom is not None and odom_pose is None:
             self.counts["scans_without_odometry"] += 1
         self._tally(painted)
-        self.trace.stamps.append(painted.stamp_ns)
-        self.trace.odom.append(odom_pose)
+        self.trace.add(painted.stamp_ns, odom_pose)
 
     def _tally(self, painted: PaintedScan) -> None:
         hit = painted.hit

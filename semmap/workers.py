@@ -41,11 +41,13 @@ import ctypes
 import logging
 import multiprocessing as mp
 import os
+import pickle
 import signal
 import sys
 import time
 import traceback
 import types
+from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
@@ -70,10 +72,38 @@ _STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident memory, MB."""
+    """This process's own peak resident memory, MB.
+
+    Linux's ``VmHWM``: ``ru_maxrss`` of a spawned worker starts at its parent's size when it was
+    forked, before the exec, and would report that instead of the worker's own peak."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
     import resource
 
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024.0 if sys.platform != "darwin" else 1024.0 ** 2)
+
+
+def _send_large(conn: Connection, obj: Any) -> None:
+    """Send an object holding large arrays without copying them into a pickle: the arrays' buffers go
+    out of band (pickle protocol 5), each written straight from its memory."""
+    buffers: list[pickle.PickleBuffer] = []
+    head = pickle.dumps(obj, protocol=5, buffer_callback=buffers.append)
+    conn.send(("large", len(buffers)))
+    conn.send_bytes(head)
+    for b in buffers:
+        conn.send_bytes(b.raw())
+
+
+def _recv_large(conn: Connection, n: int) -> Any:
+    """What :func:`_send_large` sent (after its ``("large", n)`` message): one copy of each array, in the
+    bytes it arrives in (read-only, as the records that carry them are)."""
+    head = conn.recv_bytes()
+    return pickle.loads(head, buffers=[conn.recv_bytes() for _ in range(n)])
 
 
 @contextlib.contextmanager
@@ -645,7 +675,7 @@ class InProcessMapper:
 
         self._registrar = Registrar(reg_cfg)
         self._grid = SemanticGrid(grid_cfg, class_names)
-        self._poses: list[NDArray[np.float64]] = []
+        self._poses = array("d")
         self._busy = [0.0, 0.0]
 
     def wait_ready(self) -> None:
@@ -658,14 +688,18 @@ class InProcessMapper:
         self._grid.integrate(pose, painted)
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
-        self._poses.append(pose)
+        self._poses.extend(pose.tolist())
 
     def finish(self) -> MapperResult:
-        return MapperResult(np.asarray(self._poses, dtype=np.float64).reshape(-1, 3), self._grid.layers(),
-                            self._registrar.stats, self._busy[0], self._busy[1])
+        return MapperResult(_pose_array(self._poses), self._grid.layers(), self._registrar.stats, self._busy[0],
+                            self._busy[1])
 
     def close(self) -> None:
         pass
+
+
+def _pose_array(poses: array) -> NDArray[np.float64]:
+    return np.frombuffer(poses, np.float64).reshape(-1, 3).copy() if poses else np.zeros((0, 3))
 
 
 def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection, cfg: dict[str, Any]) -> None:
@@ -674,20 +708,19 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
     registrar = Registrar(RegistrationConfig.model_validate(cfg))
     out.send(("ready",))
     cpu0 = time.process_time()
-    poses: list[NDArray[np.float64]] = []
+    poses = array("d")  # x, y, yaw per scan: 24 bytes a scan
     busy = 0.0
     while (batch := inbox.recv()) is not None:
         t0 = time.perf_counter()
         done = []
         for painted, odom_pose, prepared in batch:
             pose = registrar.register(painted, odom_pose, prepared)
-            poses.append(pose)
+            poses.extend(pose.tolist())
             done.append((pose, painted))
         busy += time.perf_counter() - t0
         to_fusion.send(done)
     to_fusion.send(None)
-    out.send(("poses", np.asarray(poses, dtype=np.float64).reshape(-1, 3), registrar.stats, busy, peak_rss_mb(),
-              time.process_time() - cpu0))
+    out.send(("poses", _pose_array(poses), registrar.stats, busy, peak_rss_mb(), time.process_time() - cpu0))
 
 
 def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...]) -> None:
@@ -705,7 +738,9 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
         for pose, painted in batch:
             grid.integrate(pose, painted)
         busy += time.perf_counter() - t0
-    out.send(("layers", grid.layers(), busy, peak_rss_mb(), time.process_time() - cpu0))
+    cpu = time.process_time() - cpu0
+    _send_large(out, grid.layers())
+    out.send(("fused", busy, peak_rss_mb(), cpu))  # the peak includes taking the layers out
 
 
 class MapperWorkers:
@@ -764,7 +799,12 @@ class MapperWorkers:
             self._batch = []
         self._send(None)
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses")
-        _, layers, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "layers")
+        _, n_buffers = self._expect(self._fuse, "large")
+        try:
+            layers = _recv_large(self._fuse.inbox, n_buffers)
+        except (EOFError, OSError):
+            raise self._group.failure() from None
+        _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused")
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)})

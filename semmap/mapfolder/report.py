@@ -94,11 +94,11 @@ def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _P
     ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
               cmap="gray", vmin=0, vmax=1, interpolation="nearest")
     ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=1.4, label=f"estimate ({pipe.cfg.registration.mode})")
-    odo = [(i, p) for i, p in enumerate(pipe.trace.odom) if p is not None]
-    if odo:
-        i0, p0 = odo[0]
-        o = np.asarray([p for _, p in odo])
-        o_map = se2_compose(poses[i0], se2_between(p0, o))
+    odom = pipe.trace.odom
+    have = np.flatnonzero(np.isfinite(odom[:, 0]))
+    if have.size:
+        i0 = int(have[0])
+        o_map = se2_compose(poses[i0], se2_between(odom[i0], odom[have]))
         ax.plot(o_map[:, 0], o_map[:, 1], "--", color="#f58231", lw=1.0, label="wheel odometry (aligned at start)")
     ax.plot(poses[0, 0], poses[0, 1], "s", color="#1f5fbf", label="start")
     ax.set_aspect("equal")

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import platform
-import resource
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -32,6 +31,7 @@ from ..io.bag import ReadStats
 from ..io.mapserver import write_map
 from ..io.tum import write_tum
 from ..io.yamlio import write_yaml
+from ..workers import peak_rss_mb
 
 if TYPE_CHECKING:
     from ..grid import CleanedMap, GridLayers
@@ -41,10 +41,6 @@ if TYPE_CHECKING:
 __all__ = ["write_map_folder", "MAP_FOLDER_VERSION"]
 
 MAP_FOLDER_VERSION = 1
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _crop_to_observed(layers: GridLayers, cleaned: CleanedMap, margin_m: float) -> tuple[GridLayers, CleanedMap]:
@@ -103,12 +99,13 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
         semi_static=cleaned.semi_static,
         dynamic_removed=cleaned.dynamic_removed,
     )
-    stamps = np.asarray(pipe.trace.stamps, np.int64)
+    stamps = pipe.trace.stamps
     poses = np.asarray(pipe.trace.poses, np.float64).reshape(-1, 3)
     write_tum(out / "trajectory.tum", stamps, poses)
-    have_odom = [i for i, p in enumerate(pipe.trace.odom) if p is not None]
-    if have_odom:
-        write_tum(out / "odometry.tum", stamps[have_odom], np.asarray([pipe.trace.odom[i] for i in have_odom]))
+    odom = pipe.trace.odom
+    have_odom = np.isfinite(odom[:, 0])
+    if have_odom.any():
+        write_tum(out / "odometry.tum", stamps[have_odom], odom[have_odom])
     write_yaml(out / "config.yaml", cfg.model_dump(mode="json"), "# effective semmap build configuration\n")
 
     from .report import render_pictures, write_report
@@ -191,7 +188,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "scans_per_s_end_to_end": round(n / elapsed, 1) if elapsed > 0 else None,
             "real_time_factor": round(span_s / loop, 1) if loop > 0 and span_s > 0 else None,
         },
-        "peak_rss_mb": round(_peak_rss_mb(), 1),
+        "peak_rss_mb": round(peak_rss_mb(), 1),
         "peak_rss_mb_workers": {**pipe.result.peak_rss_mb,
                                 **({"frames": pipe.frame_counts["peak_rss_mb"]}
                                    if "peak_rss_mb" in pipe.frame_counts else {})},

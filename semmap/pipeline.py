@@ -121,7 +121,7 @@ class _Pipeline:
         self.timers = _Timers()
         self.counts = {"scans": 0, "scans_without_image": 0, "scans_without_odometry": 0, "odometry": 0,
                        "bad_scans": 0, "scans_out_of_order": 0}
-        self._last_scan_ns: int | None = None
+        self._last_scan_ns: tuple[int, int] | None = None  # stamp and reference time of the last scan
         self.cpu_s: dict[str, float] = {}  # CPU time of the streaming loop, per process
         self.warnings: list[str] = []  # what the build warned about
         self.unpaired_offsets_ns: list[int] = []  # scans with no image close enough: the nearest one's offset
@@ -131,12 +131,12 @@ class _Pipeline:
     # -- inputs -----------------------------------------------------------------------------
     def on_odometry(self, msg: Any) -> None:
         assert self.odom is not None
-        stamp, _, _, pose = odometry_from_msg(msg)
+        stamp, _, _, pose = odometry_from_msg(msg, self.tour.topics.odometry or "")
         self.odom.add(stamp, pose)
         self.counts["odometry"] += 1
 
     def on_scan(self, t_bag: int, msg: Any) -> None:
-        scan = scan_from_msg(msg)
+        scan = scan_from_msg(msg, self.tour.topics.scan)
         n = scan.ranges.size
         if n == 0 or not np.isfinite(scan.angle_increment) or scan.angle_increment == 0:
             self.counts["bad_scans"] += 1
@@ -184,10 +184,12 @@ class _Pipeline:
         return None
 
     def _process(self, scan: Scan) -> None:
-        if self._last_scan_ns is not None and scan.stamp_ns <= self._last_scan_ns:
-            self.counts["scans_out_of_order"] += 1  # repeated or backwards stamps: skipped, counted
+        # repeated or backwards stamps, or a sweep whose middle comes before the last one's: skipped, counted
+        ref = Painter.reference_ns(scan)
+        if self._last_scan_ns is not None and (scan.stamp_ns <= self._last_scan_ns[0] or ref <= self._last_scan_ns[1]):
+            self.counts["scans_out_of_order"] += 1
             return
-        self._last_scan_ns = scan.stamp_ns
+        self._last_scan_ns = (scan.stamp_ns, ref)
         t0 = time.perf_counter()
         self._handle(scan, self._segmentation(scan), t0)
         if self.odom is not None:

@@ -140,3 +140,24 @@ def test_report_and_cli_state_how_registration_went(tour, with_file, tmp_path, c
     assert main(["build", str(tour.out), "--config", str(cfg), "--out", str(tmp_path / "m")]) == 0
     out = capsys.readouterr().out
     assert "ICP results used" in out and "rejected by the filter's gate" in out and "filter restarted" in out
+
+
+def test_a_sweep_whose_middle_comes_after_the_next_scans_is_skipped_not_a_crash(tmp_path):
+    """Scans ordered by their stamps are registered at their middle beam's time: a scan whose sweep
+    is reported much longer than the others must not put the registration out of order."""
+    from semmap.io.bag import BagWriter
+    from semmap.records import Scan
+
+    bag = tmp_path / "lidar.bag"
+    n = 361
+    angles = np.linspace(-np.pi / 2, np.pi / 2, n)
+    ranges = np.minimum(3.0 / np.maximum(np.abs(np.cos(angles)), 1e-3), 3.0 / np.maximum(np.abs(np.sin(angles)), 1e-3))
+    with BagWriter(bag, "ros1") as w:
+        for k in range(60):
+            stamp = 1_000_000_000 * 100 + k * 100_000_000
+            sweep = 0.9 if k == 20 else 0.05  # scan 20 claims a 0.9 s sweep: its middle is after scan 21's
+            w.scan("/scan", stamp, Scan(stamp, "laser", -np.pi / 2, np.pi / (n - 1), ranges.astype(np.float32),
+                                        0.05, 10.0, sweep / n, 0.1))
+    res = build(bag, tmp_path / "map", overrides={"workers": False, "topics": {"odometry": "none"}})
+    assert res.summary["counts"]["scans_out_of_order"] >= 1
+    assert res.summary["counts"]["scans"] + res.summary["counts"]["scans_out_of_order"] == 60

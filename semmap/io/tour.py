@@ -189,13 +189,13 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
     types = topic_types(bag)
     topics = resolve_topics(config, types, bag, manifest, consumes)
 
-    scan0 = scan_from_msg(_first(bag, topics.scan))
+    scan0 = scan_from_msg(_first(bag, topics.scan), topics.scan)
     lidar_frame = config.frames.lidar or scan0.frame_id
     if not lidar_frame:
         raise BagError(f"{bag}: scans on {topics.scan} have an empty frame_id; set frames.lidar")
     base_frame = config.frames.base
     if base_frame is None and topics.odometry:
-        base_frame = odometry_from_msg(_first(bag, topics.odometry))[2]
+        base_frame = odometry_from_msg(_first(bag, topics.odometry), topics.odometry)[2]
     base_frame = base_frame or "base_link"
 
     tree: TfTree | None = None
@@ -208,7 +208,7 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
             for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
                 n = 0
                 for _, _, msg in iter_messages(bag, [tf_topic]):
-                    for _, parent, child, mat in transforms_from_msg(msg):
+                    for _, parent, child, mat in transforms_from_msg(msg, tf_topic):
                         if tf_topic == topics.tf_static or child not in tree:
                             tree.add(parent, child, mat)
                     n += 1

@@ -183,14 +183,24 @@ class Painter:
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_free_range), 0.0))
         return layout.origin3 + layout.dirs_base * free[:, None], hit, r
 
+    @staticmethod
+    def beam_step_ns(scan: Scan) -> int:
+        """Nanoseconds between two beams of the sweep (0: unknown, the scan is taken as instantaneous)."""
+        return int(round(scan.time_increment * 1e9)) if scan.time_increment > 0 else 0
+
+    @classmethod
+    def reference_ns(cls, scan: Scan) -> int:
+        """The time a painted scan's points are expressed at: its middle beam's."""
+        return scan.stamp_ns + cls.beam_step_ns(scan) * (scan.ranges.size // 2)
+
     def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
         """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
         n = scan.ranges.size
         layout = self._layout(scan)
         pts_base, hit, ranges = self._beams(scan, layout)  # (N, 3) at each beam's own time
         origin = self.T_base_lidar[:2, 3]
-        dt_ns = int(round(scan.time_increment * 1e9)) if scan.time_increment > 0 else 0
-        t_ref = scan.stamp_ns + dt_ns * (n // 2)  # the middle beam's time
+        dt_ns = self.beam_step_ns(scan)
+        t_ref = self.reference_ns(scan)
         self.stats.scans += 1
 
         xy = pts_base[:, :2]

@@ -105,3 +105,18 @@ def test_settings_that_overflow_any_machine_are_refused_without_overflowing(sett
 def test_a_lidar_without_a_range_limit_counts_the_free_space_range():
     cfg = GridConfig(max_free_range=10.0)
     assert estimate_grid_memory(cfg, math.inf, 3) == estimate_grid_memory(cfg, 10.0, 3)
+
+
+def test_a_pose_jump_that_would_grow_the_grid_beyond_memory_is_a_clear_error():
+    """One wild pose (odometry jumping a thousand kilometres) must not ask for terabytes: one error naming it."""
+    from semmap.errors import SemmapError
+
+    grid = SemanticGrid(GridConfig(), ())
+    n = 90
+    a = np.linspace(-np.pi, np.pi, n, endpoint=False)
+    scan = PaintedScan(0, np.zeros(2), np.column_stack([3 * np.cos(a), 3 * np.sin(a)]), np.ones(n, bool),
+                       np.ones(n, np.uint8), np.full(n, -1, np.int16))
+    grid.integrate(np.zeros(3), scan)
+    with pytest.raises(SemmapError, match=r"m from the area mapped so far would grow the grid.*pose jumped"):
+        grid.integrate(np.array([1e6, 0.0, 0.0]), scan)
+    assert grid.layers().spec.width < 1000  # the grid is as it was

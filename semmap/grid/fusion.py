@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..config import GridConfig
-from ..errors import ConfigError
+from ..errors import ConfigError, SemmapError
 from ..records import GridSpec, Mobility, PaintedScan
 
 __all__ = ["LOG_ODDS_STEP", "N_MOBILITY", "GridLayers", "SemanticGrid", "GridMemoryEstimate",
@@ -145,6 +145,7 @@ class SemanticGrid:
             raise ValueError("GridConfig needs l_min < 0 < l_max")
         self.class_names: tuple[str, ...] = tuple(class_names)
         self.res = float(self.cfg.resolution)
+        self._budget = MEMORY_SHARE * _machine_memory()[0]  # bytes the layers may take (growth refuses more)
         # window: origin (multiple of the resolution) and arrays; None until the first scan
         self._ox = 0.0
         self._oy = 0.0
@@ -204,6 +205,15 @@ class SemanticGrid:
         oy = np.floor(ny0 / res) * res
         nw = int(np.ceil((nx1 - ox) / res)) + 1
         nh = int(np.ceil((ny1 - oy) / res)) + 1
+        per_cell = _CELL_BYTES + 2 * self._cls.shape[0]
+        need = (nh * nw + h * w) * per_cell  # the old window is held while it is copied into the new
+        if need > self._budget:
+            away = math.hypot(max(cx0 - x0, x1 - cx1, 0.0), max(cy0 - y0, y1 - cy1, 0.0)) if h else 0.0
+            seen = f", {away:.0f} m from the area mapped so far" if h else ""
+            raise SemmapError(f"a scan at ({(x0 + x1) / 2:.0f}, {(y0 + y1) / 2:.0f}) m{seen} would grow the grid to "
+                              f"{nw * res:.0f} m x {nh * res:.0f} m ({_size(need)}, more than the "
+                              f"{_size(self._budget)} it may use): the robot's pose jumped (check the odometry and "
+                              f"registration), or the building is larger than a grid.resolution of {res:g} m allows")
         lo = np.full((nh, nw), self._q_zero, np.uint16)
         hits = np.zeros((nh, nw), np.uint16)
         free = np.zeros((nh, nw), np.uint16)

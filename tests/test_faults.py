@@ -277,3 +277,36 @@ def test_worker_log_lines_reach_the_user(tour, tmp_path):
     assert "restarting the filter" in res.stderr
     summary = json.loads((tmp_path / "m" / "summary.json").read_text())
     assert summary["registration"]["filter_resets"] > 0
+
+
+def test_demo_interrupted_while_simulating_leaves_nothing(tmp_path):
+    import tempfile
+
+    before = set(Path(tempfile.gettempdir()).glob("semmap-demo-*"))
+    out = tmp_path / "map"
+    run = Run(["build", "--demo", "--out", str(out)], tmp_path)
+    run.wait_for(lambda: any(Path(tempfile.gettempdir()).glob("semmap-demo-*/.demo.*.partial")))
+    os.kill(run.proc.pid, signal.SIGTERM)
+    code, err = run.finish()
+    assert code == 143, err
+    _one_line(err, "terminated (SIGTERM)")
+    assert not out.exists()
+    assert set(Path(tempfile.gettempdir()).glob("semmap-demo-*")) == before
+
+
+def test_a_signal_after_the_output_is_complete_does_not_fail_the_command(monkeypatch, capsys, tmp_path):
+    """Ctrl-C between the map folder's rename into place and the command's return: the map is there,
+    so the command reports success, not an interruption that left a complete map behind."""
+    from semmap.cli import build as build_cmd
+    from semmap.cli.main import main
+    from semmap.io.atomic import atomic_dir
+
+    def run(args):
+        with atomic_dir(args.out) as tmp:
+            (tmp / "summary.json").write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(build_cmd, "run", run)
+    assert main(["build", "--demo", "--out", str(tmp_path / "m")]) == 0
+    assert "SIGINT arrived after" in capsys.readouterr().err
+    assert (tmp_path / "m" / "summary.json").exists()

@@ -271,42 +271,33 @@ class _Worker:
     closed: bool = False  # it closed its end: it has ended or is ending
     results: list[Any] = field(default_factory=list)  # messages that arrived while checking on it
 
-    def _take(self) -> Any:
-        """Read one message (the caller knows one is there, or waits for it). Log records are logged
-        and give None; an error report raises; end of file raises :class:`_PeerGone`."""
+    def take(self) -> None:
+        """Read one message (the caller knows one is there): a log record is logged, an error report
+        raises, end of file marks the worker closed, anything else waits in :attr:`results`."""
         try:
             msg = self.inbox.recv()
         except (EOFError, OSError):
             self.closed = True
-            raise _PeerGone from None
+            return
         if msg[0] == "log":
             _emit(*msg[1:])
-            return None
-        if msg[0] == "error":
+        elif msg[0] == "large":  # the object follows at once, out of band
+            try:
+                self.results.append(("large", _recv_large(self.inbox, msg[1])))
+            except (EOFError, OSError):
+                self.closed = True
+        elif msg[0] == "error":
             self.error = msg[1:]
             if msg[1] != "peer":
                 _raise_reported(self.stage, *msg[1:])
             raise _PeerGone
-        return msg
+        else:
+            self.results.append(msg)
 
     def poll(self) -> None:
         """Take whatever the worker has sent so far, without waiting."""
         while not self.closed and self.inbox.poll():
-            msg = self._take()
-            if msg is not None:
-                self.results.append(msg)
-
-    def recv(self) -> Any:
-        """The worker's next message (not a log record); end of file or the process's end raise
-        :class:`_PeerGone`."""
-        if self.results:
-            return self.results.pop(0)
-        while True:
-            if self.inbox not in wait([self.inbox, self.proc.sentinel]):
-                raise _PeerGone
-            msg = self._take()
-            if msg is not None:
-                return msg
+            self.take()
 
     def failed(self) -> bool:
         """It reported an error of its own, or ended without its result."""
@@ -371,7 +362,7 @@ class _Workers:
             self._child_ends.clear()
 
     def check(self) -> None:
-        """Raise if a worker has failed or ended; take its log records meanwhile."""
+        """Raise if a worker has failed; take their log records meanwhile."""
         for w in self.workers:
             try:
                 w.poll()
@@ -405,10 +396,21 @@ class _Workers:
         return _death(culprit.stage, culprit.proc.exitcode)
 
     def recv(self, w: _Worker) -> Any:
+        """``w``'s next message. While waiting for it, the other workers' log records are taken too,
+        so that none of them blocks on a full pipe while the caller waits for ``w``."""
         try:
-            return w.recv()
+            while not w.results:
+                if w.closed:
+                    raise _PeerGone
+                ready = wait([x.inbox for x in self.workers if not x.closed] + [w.proc.sentinel])
+                for x in self.workers:
+                    if not x.closed and x.inbox in ready:
+                        x.take()
+                if w.proc.sentinel in ready and not w.results and (w.closed or not w.inbox.poll()):
+                    raise _PeerGone
         except _PeerGone:
             raise self.failure() from None
+        return w.results.pop(0)
 
     def close(self) -> None:
         """Stop every worker and close every pipe; SIGINT and SIGTERM wait until this is done.
@@ -799,11 +801,7 @@ class MapperWorkers:
             self._batch = []
         self._send(None)
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses")
-        _, n_buffers = self._expect(self._fuse, "large")
-        try:
-            layers = _recv_large(self._fuse.inbox, n_buffers)
-        except (EOFError, OSError):
-            raise self._group.failure() from None
+        _, layers = self._expect(self._fuse, "large")
         _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused")
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},

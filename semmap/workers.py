@@ -68,6 +68,7 @@ log = logging.getLogger(__name__)
 
 _PIPE_BYTES = 1 << 20  # scans in flight between the mapping stages (Linux; elsewhere the system's pipe size)
 _REPORT_S = 3.0  # after a failure, how long the other workers get to report theirs
+_EXIT_S = 2.0  # how long workers that sent their last message get to end on their own
 _STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
 
 
@@ -269,6 +270,7 @@ class _Worker:
     inbox: Connection  # what the worker sends the caller
     error: tuple[str, str, str, str] | None = None  # what it reported, if it failed
     closed: bool = False  # it closed its end: it has ended or is ending
+    finished: bool = False  # its last message arrived: it is ending on its own
     results: list[Any] = field(default_factory=list)  # messages that arrived while checking on it
 
     def take(self) -> None:
@@ -352,8 +354,12 @@ class _Workers:
         main = sys.modules.get("__main__")
         sys.modules["__main__"] = types.ModuleType("__main__")
         try:
-            for w in self.workers:
-                w.proc.start()
+            # a child inherits the signal mask: held here, the stop signals stay blocked in the workers from
+            # their first instruction (a Ctrl-C during their imports would print a KeyboardInterrupt
+            # traceback), and one that reaches this process meanwhile is delivered when they have started
+            with signals_held():
+                for w in self.workers:
+                    w.proc.start()
         finally:
             if main is not None:
                 sys.modules["__main__"] = main
@@ -414,8 +420,14 @@ class _Workers:
 
     def close(self) -> None:
         """Stop every worker and close every pipe; SIGINT and SIGTERM wait until this is done.
-        A worker holds nothing that needs its own clean-up, so it is killed, not asked."""
+        A worker that sent its last message gets a moment to end on its own (its interpreter's exit
+        handlers run: a profiler, coverage); any other holds nothing that needs its own clean-up,
+        so it is killed, not asked."""
         with signals_held():
+            deadline = time.monotonic() + _EXIT_S
+            for w in self.workers:
+                if w.finished and w.proc.pid is not None:
+                    w.proc.join(max(0.0, deadline - time.monotonic()))
             for w in self.workers:
                 if w.proc.pid is not None and w.proc.is_alive():
                     w.proc.kill()
@@ -610,7 +622,7 @@ class FrameWorker:
             return Segmentation(stamp, label, names)
         if msg[0] == "done":
             self.counts = msg[1]
-            self._done = True
+            self._done = self._worker.finished = True
             return None
         raise InternalError(f"the frames worker sent {msg[0]!r}")
 
@@ -800,17 +812,18 @@ class MapperWorkers:
             self._send(self._batch)
             self._batch = []
         self._send(None)
-        _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses")
+        _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses", last=True)
         _, layers = self._expect(self._fuse, "large")
-        _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused")
+        _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused", last=True)
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)})
 
-    def _expect(self, w: _Worker, tag: str) -> Any:
+    def _expect(self, w: _Worker, tag: str, last: bool = False) -> Any:
         msg = self._group.recv(w)
         if msg[0] != tag:
             raise InternalError(f"the {w.stage} worker sent {msg[0]!r}, not {tag!r}")
+        w.finished = last
         return msg
 
     def close(self) -> None:

@@ -105,3 +105,27 @@ def test_check_on_the_acfr_pair(data_dir, tmp_path):
     r = check_calibration(Calibration(intr, T), image=sorted((d / "images").glob("*.png"))[0],
                           scan=sorted((d / "lasers").glob("*.pcd"))[0], out=tmp_path / "c.png")
     assert r.n_points > 300 and 60 < r.n_in_image < r.n_points
+
+
+@pytest.mark.parametrize("short_tour", ["ros1", "mcap"], indirect=True)
+def test_check_on_a_damaged_bag_is_one_line(short_tour, tmp_path, capsys):
+    """A bag cut short (a robot's battery died): one line naming the bag, exit 3, no picture."""
+    import shutil
+
+    src = short_tour.bag
+    if src.is_dir():
+        bag = tmp_path / "cut"
+        shutil.copytree(src, bag)
+        data_file = next(f for f in bag.iterdir() if f.suffix in (".mcap", ".db3"))
+    else:
+        bag = data_file = tmp_path / "cut.bag"
+        shutil.copy(src, bag)
+    data = data_file.read_bytes()
+    data_file.write_bytes(data[: len(data) // 2])
+    shutil.copy(short_tour.out / "calibration.yaml", tmp_path / "calibration.yaml")
+    code = main(["calibrate", "check", "--bag", str(bag), "--calib", str(tmp_path / "calibration.yaml"),
+                 "--out", str(tmp_path / "c.png")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3, err
+    assert len(err) == 1 and str(bag) in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "c.png").exists()

@@ -175,7 +175,7 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
     scan frame_id). Topics are found by type when not given (image topics named like labels,
     masks or depth are passed over).
     """
-    from ..io.bag import open_bag
+    from ..io.bag import iter_messages, open_bag
 
     with open_bag(bag) as reader:
         conns = reader.connections
@@ -187,7 +187,8 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
                                f"({', '.join(scans) or '-'}); name one with --scan-topic")
             scan_topic = scans[0]
         if image_topic is None:
-            imgs = sorted({c.topic for c in conns if c.msgtype in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+            kinds = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+            imgs = sorted({c.topic for c in conns if c.msgtype in kinds
                            and not any(w in c.topic.lower() for w in _SKIP_IMAGE_WORDS)})
             if len(imgs) != 1:
                 raise BagError(f"{bag}: {'no' if not imgs else 'several'} camera image topics "
@@ -201,25 +202,26 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
             time_s = (reader.end_time - start) * 0.5e-9
         target = start + int(round(time_s * 1e9))
         if not start <= target <= reader.end_time:
-            raise BagError(f"{bag}: time {time_s:g} s is outside the bag (0 to {(reader.end_time - start) / 1e9:.1f} s)")
-        img_conns = [c for c in conns if c.topic == image_topic]
-        best: tuple[int, Any, Any] | None = None
-        for conn, t_ns, raw in reader.messages(connections=img_conns):
+            raise BagError(f"{bag}: time {time_s:g} s is outside the bag "
+                           f"(0 to {(reader.end_time - start) / 1e9:.1f} s)")
+        best: tuple[int, Any] | None = None  # the image nearest the time asked for (bag time)
+        for _, t_ns, msg in iter_messages(bag, [image_topic], reader=reader):
             if best is None or abs(t_ns - target) < abs(best[0] - target):
-                best = (t_ns, conn, raw)
+                best = (t_ns, msg)
             elif t_ns > target:
                 break
         if best is None:
             raise BagError(f"{bag}: no messages on {image_topic}")
-        img_msg = reader.deserialize(best[2], best[1].msgtype)
-        img = _decode_image(img_msg, best[1].msgtype)
+        img_msg = best[1]
+        img = _decode_image(img_msg, by_topic[image_topic])
         img_stamp = _stamp(img_msg)
-        scan_conns = [c for c in conns if c.topic == scan_topic]
-        best_s: tuple[int, Any] | None = None
+        best_s: tuple[int, Any] | None = None  # the scan nearest the image (header stamps), within 2 s of it
         window = 2_000_000_000
-        for conn, _t_ns, raw in reader.messages(connections=scan_conns, start=max(start, best[0] - window),
-                                               stop=best[0] + window):
-            msg = reader.deserialize(raw, conn.msgtype)
+        for _, t_ns, msg in iter_messages(bag, [scan_topic], reader=reader):
+            if t_ns < best[0] - window:
+                continue
+            if t_ns > best[0] + window:
+                break
             st = _stamp(msg)
             if best_s is None or abs(st - img_stamp) < abs(best_s[0] - img_stamp):
                 best_s = (st, msg)

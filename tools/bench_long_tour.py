@@ -592,8 +592,8 @@ def main() -> int:
             lines.append(f"| {n} | {vals} | {f['mb_per_minute']:+.3f} | {f['tour_length_term_mb']:+.1f} | "
                          f"{'' if bps is None else f'{bps:+.0f}'} | {f['beyond_map_mb']:+.1f} | {f['limit_mb']:.1f} | "
                          f"{'yes' if f['flat'] else '**no**'} |")
-        lines += ["", "(summary.json's figures are shown but not judged: a spawned worker's ru_maxrss starts at its "
-                      "parent's RSS at the spawn, and the workers read theirs before sending their results.)", "",
+        lines += ["", "(summary.json's figures are shown but not judged: they are each process's own VmHWM since "
+                      "2026-11-23; before, a spawned worker's ru_maxrss started at its parent's RSS at the spawn.)", "",
                   f"Verdict: memory is {'FLAT' if v['flat'] else 'NOT flat'} apart from the map: {v['reason']}."]
     text = "\n".join(lines)
     print(text)

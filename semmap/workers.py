@@ -38,10 +38,10 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import logging
 import multiprocessing as mp
 import os
-import pickle
 import signal
 import sys
 import time
@@ -90,21 +90,30 @@ def peak_rss_mb() -> float:
 
 
 def _send_large(conn: Connection, obj: Any) -> None:
-    """Send an object holding large arrays without copying them into a pickle: the arrays' buffers go
-    out of band (pickle protocol 5), each written straight from its memory."""
-    buffers: list[pickle.PickleBuffer] = []
-    head = pickle.dumps(obj, protocol=5, buffer_callback=buffers.append)
-    conn.send(("large", len(buffers)))
-    conn.send_bytes(head)
-    for b in buffers:
-        conn.send_bytes(b.raw())
+    """Send a frozen dataclass holding large arrays (the grid's layers) without pickling the arrays: its
+    other fields go in the announcing message, each array's bytes straight from its memory after it."""
+    fields = {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+    arrays = {k: np.ascontiguousarray(v) for k, v in fields.items() if isinstance(v, np.ndarray)}
+    conn.send(("large", type(obj), {k: v for k, v in fields.items() if k not in arrays},
+               {k: (a.dtype.str, a.shape) for k, a in arrays.items()}))
+    for a in arrays.values():
+        conn.send_bytes(a.reshape(-1).view(np.uint8) if a.size else b"")
 
 
-def _recv_large(conn: Connection, n: int) -> Any:
-    """What :func:`_send_large` sent (after its ``("large", n)`` message): one copy of each array, in the
-    bytes it arrives in (read-only, as the records that carry them are)."""
-    head = conn.recv_bytes()
-    return pickle.loads(head, buffers=[conn.recv_bytes() for _ in range(n)])
+def _recv_large(conn: Connection, cls: type, others: dict[str, Any], layout: dict[str, tuple[str, tuple[int, ...]]]
+                ) -> Any:
+    """What :func:`_send_large` sent, after its announcing message: each array received into its own
+    memory, read-only as in the sender."""
+    arrays = {}
+    for name, (dtype, shape) in layout.items():
+        a = np.empty(shape, dtype)
+        if a.size:
+            conn.recv_bytes_into(a.reshape(-1).view(np.uint8))
+        else:
+            conn.recv_bytes()
+        a.setflags(write=False)
+        arrays[name] = a
+    return cls(**others, **arrays)
 
 
 @contextlib.contextmanager
@@ -285,7 +294,7 @@ class _Worker:
             _emit(*msg[1:])
         elif msg[0] == "large":  # the object follows at once, out of band
             try:
-                self.results.append(("large", _recv_large(self.inbox, msg[1])))
+                self.results.append(("large", _recv_large(self.inbox, *msg[1:])))
             except (EOFError, OSError):
                 self.closed = True
         elif msg[0] == "error":

@@ -8,8 +8,8 @@ Both loaders turn a pixel into an occupancy ``p = (255 - v) / 255`` (``negate: 0
 compare it with the YAML's thresholds: ROS1's ``map_server`` calls it occupied when
 ``p > occupied_thresh`` and free when ``p < free_thresh``; nav2's ``map_io`` when
 ``p >= occupied_thresh`` and ``p <= free_thresh`` (in float32 since 2025). Unknown grey 205
-is ``p = 0.196078...``: with nav2's default ``free_thresh: 0.25`` every unknown cell loads as
-free, and a planner plans through unexplored space. semmap writes ``free_thresh: 0.196``
+is ``p = 0.196078...``: with the free threshold of a quarter that nav2's examples use, every
+unknown cell loads as free, and a planner plans through unexplored space. semmap writes ``free_thresh: 0.196``
 and ``occupied_thresh: 0.65``, as ROS1's ``map_saver`` and nav2's trinary saver do, under
 which 0, 205 and 254 load as occupied, unknown and free in both loaders
 (:func:`check_trinary_thresholds`).

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -33,6 +33,13 @@ class ClassTable:
     class_lists: Mapping[str, tuple[str, ...]]
     mobility: Mapping[str, Mobility]
     source: str = "<memory>"
+    #: typical length of an object of the class at floor level, m (the legs of a table span
+    #: its top): cleaning joins a class's cells into objects up to about this size
+    sizes: Mapping[str, float] = field(default_factory=dict)
+
+    def size_of(self, name: str, default: float = 1.0) -> float:
+        """Typical floor-level length of an object of class ``name`` (``default`` when not listed), m."""
+        return float(self.sizes.get(name, default))
 
     def names(self, list_name: str) -> tuple[str, ...]:
         try:
@@ -59,7 +66,7 @@ class ClassTable:
 def _parse(data: object, source: str) -> ClassTable:
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping with 'class_lists' and 'mobility'")
-    unknown = set(data) - {"class_lists", "mobility"}
+    unknown = set(data) - {"class_lists", "mobility", "sizes"}
     if unknown:
         raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}")
     lists_raw = data.get("class_lists") or {}
@@ -82,7 +89,17 @@ def _parse(data: object, source: str) -> ClassTable:
                 f"{source}: class_lists.{list_name}: no mobility for {missing[:5]}"
             )
         lists[str(list_name)] = tuple(names)
-    return ClassTable(class_lists=lists, mobility=mobility, source=source)
+    sizes_raw = data.get("sizes") or {}
+    if not isinstance(sizes_raw, dict):
+        raise ConfigError(f"{source}: 'sizes' must be a mapping of class name to metres")
+    sizes: dict[str, float] = {}
+    for name, value in sizes_raw.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < float(value) <= 100:
+            raise ConfigError(f"{source}: sizes.{name}: expected a length in metres in (0, 100], got {value!r}")
+        if str(name) not in mobility:
+            raise ConfigError(f"{source}: sizes.{name}: not a class under 'mobility:'")
+        sizes[str(name)] = float(value)
+    return ClassTable(class_lists=lists, mobility=mobility, source=source, sizes=sizes)
 
 
 def load_class_table(path: str | Path | None = None) -> ClassTable:

@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import ConfigError
 
@@ -324,8 +324,13 @@ class GridConfig(_Model):
     l_free: float = Field(0.4, gt=0, description="log-odds removed along a ray")
     l_min: float = Field(-2.0, lt=0, description="log-odds clamp, low")
     l_max: float = Field(3.5, gt=0, description="log-odds clamp, high")
-    max_free_range: float = Field(10.0, gt=0, description="free space is cleared at most this far from the sensor "
-                                                          "(beams without a return: to here), m")
+    max_range: float = Field(10.0, gt=0, le=1000,
+                             validation_alias=AliasChoices("max_range", "max_free_range"),
+                             description="evidence is taken only this far from the sensor, m: returns farther "
+                                         "away count as 'nothing within max_range' (no hit; they clear free "
+                                         "space to here), so hits and free space are judged over the same range "
+                                         "(far sightings of a person would otherwise add hits that no free ray "
+                                         "takes back). Older configs call it max_free_range")
     tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
     hit_free_margin: float = Field(0.05, ge=0, description="returns clear free space only to this far short "
                                                             "of their end point, m (keeps grazing rays from "
@@ -367,9 +372,27 @@ class CleaningConfig(_Model):
     structure_min_size: float = Field(1.0, gt=0, le=1000, description="touching occupied cells longer than this "
                                                                        "are structure: their unlabelled cells stay "
                                                                        "static, m")
-    leg_max_size: float = Field(0.2, ge=0, le=10, description="an isolated blob no longer than this with no camera "
-                                                               "label is a furniture leg, flagged semi-static, m "
-                                                               "(0: off)")
+    leg_max_size: float = Field(0.0, ge=0, le=10, description="the leg prior: an isolated blob no longer than this "
+                                                               "with no camera label is flagged semi-static as a "
+                                                               "furniture leg, m (0: off, the default: without "
+                                                               "camera evidence far walls' sparse returns look "
+                                                               "like legs)")
+    person_radius: float = Field(0.35, ge=0, le=5, description="occupied cells this close to a cell labelled dynamic "
+                                                               "belong to that person and leave with it (the leg "
+                                                               "arcs no camera labelled), unless they are wall or "
+                                                               "their own labels say otherwise, m (0: off)")
+    face_max_length: float = Field(2.4, ge=0, le=100, description="an unlabelled straight run that meets a cell "
+                                                                   "flagged semi-static takes its flag when no longer "
+                                                                   "than this (a bed's or couch's side the camera did "
+                                                                   "not see), m (0: off)")
+    person_leg_width: tuple[float, float] = Field((0.1, 0.25), description="a blob no camera labelled that is this "
+                                                                             "wide (min, max) may be a person's leg, m")
+    person_leg_spacing: tuple[float, float] = Field((0.12, 0.4), description="two such blobs this far apart (centre "
+                                                                               "to centre; min, max) with nothing else "
+                                                                               "near are a person's legs and leave, m "
+                                                                               "(max 0: off)")
+    person_max_size: float = Field(1.0, ge=0, le=10, description="a blob of touching cells up to this long that "
+                                                                "holds dynamic evidence leaves whole, m")
     label_spread_distance: float = Field(0.6, ge=0, le=100, description="unlabelled cells take their object's "
                                                                          "verdict only this close to a cell "
                                                                          "labelled so, m")

@@ -27,7 +27,7 @@ from semmap.records import GridSpec, Mobility, PaintedScan
 REPO = Path(__file__).resolve().parents[1]
 ANGLES = np.radians(np.linspace(-135.0, 135.0, 541))
 CAMERA_HALF_FOV = math.radians(28.0)
-NAMES = ("wall", "person", "chair")
+NAMES = ("wall", "person", "chair", "dining table", "bed")
 STATIC, SEMI, DYN = int(Mobility.STATIC), int(Mobility.SEMI_STATIC), int(Mobility.DYNAMIC)
 
 
@@ -131,11 +131,18 @@ def test_a_ray_never_frees_its_own_end_cell():
         scan = world.scan(pose, noise=0.01, rng=rng)
         g.integrate(np.asarray(pose), scan)
         lay = g.layers()
-        ends = se2_apply(np.asarray(pose), scan.points[scan.hit])
+        near = scan.hit & (np.hypot(*(scan.points - scan.origin).T) <= GridConfig().max_range)
+        ends = se2_apply(np.asarray(pose), scan.points[near])
         r, c = lay.spec.world_to_cell(ends).T
         assert (lay.free[r, c] == 0).all(), f"scan {k}: an end cell was cleared by its own scan"
         assert (lay.hits[r, c] == 1).all()
         assert np.allclose(lay.log_odds[r, c], GridConfig().l_occ)
+        # returns beyond max_range are no hits: their cells gain nothing (unless a near return shares them)
+        far = se2_apply(np.asarray(pose), scan.points[scan.hit & ~near])
+        fr, fc = lay.spec.world_to_cell(far).T
+        shared = {(a, b) for a, b in zip(r.tolist(), c.tolist())}
+        alone = np.array([(a, b) not in shared for a, b in zip(fr.tolist(), fc.tolist())], bool)
+        assert (lay.hits[fr[alone], fc[alone]] == 0).all()
 
 
 def test_free_space_between_sensor_and_wall_is_cleared():
@@ -184,7 +191,7 @@ def test_memory_follows_the_area_observed():
     """Driving 60 m down a 3 m corridor grows a strip, not a square, and only seen classes get layers."""
     world = World().wall((-2, -1.5), (62, -1.5)).wall((-2, 1.5), (62, 1.5))
     names = tuple(f"class_{i}" for i in range(80))  # a COCO-sized class list
-    g = SemanticGrid(GridConfig(max_free_range=8.0, tile_margin=5.0), names)
+    g = SemanticGrid(GridConfig(max_range=8.0, tile_margin=5.0), names)
     for x in np.arange(0.0, 60.0, 0.5):
         s = world.scan((x, 0.0, 0.0))
         g.integrate(np.array([x, 0.0, 0.0]), replace(s, class_names=names))
@@ -239,12 +246,27 @@ def test_a_person_standing_in_camera_view_is_dropped():
     assert cm.occupied[walls & (lay.hits > 0)].mean() > 0.97
 
 
-def test_a_person_never_seen_by_the_camera_stays():
-    """Without any camera label there is no evidence to drop them: they stay in the map (a known limit)."""
+def test_a_person_no_camera_saw_is_found_by_their_legs_and_furniture_legs_are_not():
+    """Someone standing all tour where the camera never looked: two leg-wide blobs about 20 cm apart
+    with nothing else near leave; a chair's, a table's and a bed's legs, never labelled either, stay."""
     world = _person(World().room(-4, -4, 4, 4), (0.0, 0.0))
-    lay = fuse(world, orbit((0.0, 0.0), 2.0, 24), camera=False).layers()
+    _person(world, (-2.0, 2.0))  # a second one, seen only from one side
+    chair = _chair(world, (2.0, -2.0))
+    table = [(x, y) for x in (-2.65, -1.35) for y in (-2.35, -1.65)]
+    bed = [(x, y) for x in (1.6, 2.4) for y in (1.0, 3.0)]
+    for c in table:
+        world.leg(c, 0.025, 3, SEMI)
+    for c in bed:
+        world.leg(c, 0.04, 4, SEMI)
+    lay = fuse(world, orbit((0.0, 0.0), 1.2, 24), camera=False, noise=0.005, rng=np.random.default_rng(5)).layers()
     cm = clean(lay, CleaningConfig(), NAMES)
-    assert cm.occupied[around(lay.spec, (0.0, 0.0), 0.3)].sum() >= 4
+    for p in ((0.0, 0.0), (-2.0, 2.0)):
+        body = around(lay.spec, p, 0.3)
+        assert lay.hits[body].sum() > 0 and cm.occupied[body].sum() == 0, f"person at {p} stayed"
+    for leg in chair + table + bed:
+        assert cm.occupied[around(lay.spec, leg, 0.07)].any(), f"furniture leg at {leg} was dropped"
+    off = clean(lay, CleaningConfig(person_leg_spacing=(0.12, 0.0)), NAMES)
+    assert off.occupied[around(lay.spec, (0.0, 0.0), 0.3)].sum() >= 4
 
 
 def test_a_walking_person_is_cleared_by_free_space():
@@ -288,15 +310,86 @@ def test_chair_legs_are_flagged_semi_static_and_listed():
     assert not cm.semi_static[around(lay.spec, (0, 0), 10) & ~around(lay.spec, (0, 0), 3.8)].any()
 
 
-def test_unlabelled_furniture_legs_are_flagged_by_their_shape():
-    """Legs the camera never saw (a room looked into through a door) are still flagged semi-static."""
+def test_without_camera_evidence_nothing_is_called_movable_unless_the_leg_prior_is_asked_for():
+    """LiDAR-only maps listed far walls' sparse returns as "movable objects": by default a blob the camera
+    never labelled stays static; the leg prior (``leg_max_size``) flags small isolated blobs on request."""
     world = World().room(-4, -4, 4, 4)
     legs = _chair(world, (2.0, 2.0))
     lay = fuse(world, orbit((0.0, 0.0), 1.0, 12), camera=False).layers()
     cm = clean(lay, CleaningConfig(), NAMES)
-    assert all(cm.semi_static[around(lay.spec, leg, 0.06)].any() for leg in legs)
-    off = clean(lay, CleaningConfig(leg_max_size=0.0), NAMES)
-    assert not off.semi_static.any()
+    assert not cm.semi_static.any() and not cm.objects
+    assert all(cm.occupied[around(lay.spec, leg, 0.06)].any() for leg in legs)  # the legs stay as obstacles
+    on = clean(lay, CleaningConfig(leg_max_size=0.2), NAMES)
+    assert all(on.semi_static[around(lay.spec, leg, 0.06)].any() for leg in legs)
+    assert not on.semi_static[around(lay.spec, (4.0, 0.0), 3.0) & ~around(lay.spec, (2.0, 2.0), 0.4)].any()
+
+
+def test_a_person_standing_at_a_counter_leaves_whole_and_the_counter_stays():
+    """A person standing all tour against furniture used to join it as one blob and stay: the person goes
+    (leg arcs no camera labelled included), the counter does not."""
+    world = World().room(-4, -4, 4, 4)
+    world.wall((1.0, -0.8), (1.0, 0.8), 3, SEMI)  # a counter's front, labelled "dining table"
+    _person(world, (0.87, 0.0))  # legs 0.065 m in front of it
+    poses = [(-2.0, y, 0.0) for y in np.linspace(-1.0, 1.0, 6)]  # camera on the counter and the person
+    poses += orbit((0.0, 0.0), 2.0, 20, face=(-3.0, 0.0))  # the LiDAR alone from all around
+    lay = fuse(world, poses, noise=0.01, rng=np.random.default_rng(3)).layers()
+    cm = clean(lay, CleaningConfig(), NAMES)
+    legs = around(lay.spec, (0.87, 0.1), 0.09) | around(lay.spec, (0.87, -0.1), 0.09)
+    legs &= lay.spec.cell_centres()[0] < 0.95  # not the counter's own cells
+    # at most one cell, touching the counter's face, is left of the person
+    assert legs.sum() > 5 and cm.occupied[legs].sum() <= 1
+    left = legs & cm.occupied
+    assert (lay.spec.cell_centres()[0][left] > 0.9).all()
+    counter = (np.abs(lay.spec.cell_centres()[0] - 1.0) < 0.03) & (np.abs(lay.spec.cell_centres()[1]) < 0.75)
+    counter &= lay.hits > 0
+    assert cm.occupied[counter].mean() > 0.9
+    assert cm.semi_static[counter & cm.occupied].mean() > 0.9
+    # without the per-person rule the unlabelled arcs stay
+    off = clean(lay, CleaningConfig(person_radius=0.0, person_max_size=0.0), NAMES)
+    assert off.occupied[legs].sum() > 0
+
+
+def test_a_bed_against_a_wall_is_flagged_on_every_side_and_the_wall_is_not():
+    """A solid bed touching a wall merged with it into one blob and only its labelled faces were flagged:
+    now each face is judged apart from the wall, unlabelled sides join it, and no wall cell is flagged."""
+    world = World().room(-4, -4, 4, 4)
+    corners = [(-0.5, 1.9), (0.5, 1.9), (0.5, 3.94), (-0.5, 3.94)]  # headboard against the north wall
+    for a, b in ((corners[0], corners[1]), (corners[1], corners[2]), (corners[3], corners[0])):
+        world.wall(a, b, 4, SEMI)
+    poses = [(x, -1.0, math.pi / 2) for x in np.linspace(-0.6, 0.6, 6)]  # the camera sees the foot end
+    poses += [(2.5, y, math.pi / 2) for y in np.linspace(-2.0, 2.5, 10)]  # the LiDAR alone sees the east side
+    poses += [(-2.5, y, -math.pi / 2) for y in np.linspace(2.5, -2.0, 10)]  # ... and the west side
+    lay = fuse(world, poses, noise=0.005, rng=np.random.default_rng(4)).layers()
+    cm = clean(lay, CleaningConfig(), NAMES)
+    xs, ys = lay.spec.cell_centres()
+    sides = (((np.abs(xs - 0.5) < 0.03) | (np.abs(xs + 0.5) < 0.03)) & (ys > 2.0) & (ys < 3.85)) | (
+        (np.abs(ys - 1.9) < 0.03) & (np.abs(xs) < 0.5))
+    sides &= cm.occupied
+    assert sides.sum() > 60
+    assert cm.semi_static[sides].mean() > 0.9
+    wall = (np.abs(ys - 4.0) < 0.06) & (np.abs(xs) > 0.6) & cm.occupied
+    assert wall.sum() > 50 and not cm.semi_static[wall].any()
+    beds = [o for o in cm.objects if o.class_name == "bed"]
+    assert len(beds) == 1 and beds[0].views > 0
+
+
+def test_the_legs_of_one_table_are_one_object_and_a_row_of_chairs_is_several():
+    """The object list: a table is its four legs (1.3 m apart), three chairs side by side are three chairs."""
+    world = World().room(-4, -4, 4, 4)
+    for dx in (-0.65, 0.65):
+        for dy in (-0.35, 0.35):
+            world.leg((dx, 1.5 + dy), 0.025, 3, SEMI)
+    for x in (-0.55, 0.0, 0.55):
+        _chair(world, (x, -1.5))
+    poses = [(0.0, 0.0, a) for a in np.linspace(-np.pi, np.pi, 24, endpoint=False)]
+    poses += [(x, 0.0, a) for x in (-1.5, 1.5) for a in (math.pi / 2, -math.pi / 2)]
+    lay = fuse(world, poses).layers()
+    cm = clean(lay, CleaningConfig(), NAMES)
+    tables = [o for o in cm.objects if o.class_name == "dining table"]
+    chairs = [o for o in cm.objects if o.class_name == "chair"]
+    assert len(tables) == 1 and abs(tables[0].centroid[1] - 1.5) < 0.1 and tables[0].size[0] > 1.2
+    assert len(chairs) == 3
+    assert sorted(round(c.centroid[0], 1) for c in chairs) == pytest.approx([-0.55, 0.0, 0.55], abs=0.1)
 
 
 def test_a_wall_stays_static_next_to_a_person_and_a_chair():

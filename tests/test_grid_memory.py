@@ -30,7 +30,7 @@ def ring_scan(radius: float, n: int = 1440) -> PaintedScan:
 
 
 def test_the_estimate_is_what_a_grid_allocates_for_its_first_scan_and_one_growth_step():
-    cfg = GridConfig(resolution=0.05, tile_margin=10.0)
+    cfg = GridConfig(resolution=0.05, tile_margin=10.0, max_range=20.0)
     reach = 12.0
     est = estimate_grid_memory(cfg, reach, len(NAMES))
     grid = SemanticGrid(cfg, NAMES)
@@ -80,7 +80,7 @@ def test_an_absurd_resolution_is_refused_with_the_estimate_before_any_allocation
     msg = str(err.value)
     assert "\n" not in msg
     assert msg.startswith("grid.resolution 0.0001 m")
-    assert "first 60 m x 60 m window needs 135 TiB" in msg  # 600k cells a side, 174 bytes each
+    assert "first 40 m x 40 m window needs 65 TiB" in msg  # 400k cells a side (10 m range), 174 bytes each
     assert "more than the 16 GiB available" in msg
     assert "coarser grid.resolution (0.05 m is typical)" in msg
 
@@ -103,7 +103,7 @@ def test_settings_that_overflow_any_machine_are_refused_without_overflowing(sett
 
 
 def test_a_lidar_without_a_range_limit_counts_the_free_space_range():
-    cfg = GridConfig(max_free_range=10.0)
+    cfg = GridConfig(max_range=10.0)
     assert estimate_grid_memory(cfg, math.inf, 3) == estimate_grid_memory(cfg, 10.0, 3)
 
 

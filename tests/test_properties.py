@@ -319,7 +319,7 @@ def painted_scans(draw, max_beams: int = 400, all_hits: bool = False):
 def grid_configs(draw):
     return GridConfig(resolution=draw(st.floats(0.02, 0.5)), tile_margin=draw(st.floats(0.1, 2.0)),
                       hit_free_margin=draw(st.floats(0.0, 0.2)), free_erode=draw(st.booleans()),
-                      dropout_guard=draw(st.integers(0, 3)), max_free_range=draw(st.floats(0.5, 10.0)))
+                      dropout_guard=draw(st.integers(0, 3)), max_range=draw(st.floats(0.5, 10.0)))
 
 
 small_pose = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-10, 10)).map(np.array)
@@ -339,6 +339,8 @@ def test_a_return_never_clears_the_cell_it_ends_in(cfg, scan, pose):
     g.integrate(pose, scan)
     assert g.n_scans == 1
     ok = scan.hit & np.isfinite(scan.points).all(axis=1)
+    with np.errstate(invalid="ignore"):  # returns beyond max_range are no hits
+        ok &= np.hypot(*(scan.points - scan.origin).T) <= cfg.max_range
     if g.spec is None:  # a scan without beams allocates nothing
         assert scan.n_beams == 0
         return
@@ -374,8 +376,10 @@ def test_cells_between_the_sensor_and_its_returns_are_cleared(cfg, seed, pose):
     g.integrate(pose, scan)
     lay = g.layers()
     res = cfg.resolution
-    # the free-space polygon: the sensor and each beam cleared up to hit_free_margin short of its return
-    free_len = np.minimum(np.maximum(ranges - cfg.hit_free_margin, 0.0), cfg.max_free_range)
+    # the free-space polygon: the sensor and each beam cleared up to hit_free_margin short of its return;
+    # a return beyond max_range is no return: it clears to max_range
+    free_len = np.where(ranges > cfg.max_range, cfg.max_range,
+                        np.minimum(np.maximum(ranges - cfg.hit_free_margin, 0.0), cfg.max_range))
     poly = se2_apply(pose, np.vstack([[0.0, 0.0], free_len[:, None] * d]))
     # sample points along random beams
     k = rng.integers(0, n, 200)

@@ -54,6 +54,8 @@ __all__ = ["CleanedMap", "SemiStaticObject", "clean", "group_cells"]
 
 log = logging.getLogger(__name__)
 
+_KERNEL3 = np.ones((3, 3), np.uint8)
+
 
 @dataclass(frozen=True)
 class SemiStaticObject:
@@ -69,10 +71,14 @@ class SemiStaticObject:
     size: tuple[float, float]
     yaw: float
     n_cells: int
+    #: painted scans that saw it: the most camera-labelled hits any one of its cells gathered
+    #: (one per scan and cell); 0 for an object flagged from geometry alone
+    views: int = 0
 
     def as_dict(self) -> dict[str, object]:
         return {"class": self.class_name, "centroid": [round(v, 3) for v in self.centroid],
-                "size": [round(v, 3) for v in self.size], "yaw": round(self.yaw, 4), "n_cells": self.n_cells}
+                "size": [round(v, 3) for v in self.size], "yaw": round(self.yaw, 4), "n_cells": self.n_cells,
+                "views": self.views}
 
 
 @dataclass(frozen=True)
@@ -186,6 +192,194 @@ def _class_mobility(names: Sequence[str]) -> list[Mobility | None]:
     return [table.mobility.get(n) for n in names]
 
 
+def _direction_kernels(length_cells: float) -> list[NDArray[np.uint8]]:
+    """Line kernels ``length_cells`` long in 8 directions (every 22.5°)."""
+    n = max(round(length_cells), 2)
+    k = n | 1
+    c = k // 2
+    kernels = [np.ones((1, n), np.uint8), np.ones((n, 1), np.uint8)]
+    for deg in (22.5, 45.0, 67.5, 112.5, 135.0, 157.5):
+        kern = np.zeros((k, k), np.uint8)
+        dx, dy = c * math.cos(math.radians(deg)), c * math.sin(math.radians(deg))
+        cv2.line(kern, (round(c - dx), round(c - dy)), (round(c + dx), round(c + dy)), 1, 1, cv2.LINE_8)
+        kernels.append(kern)
+    return kernels
+
+
+@dataclass(frozen=True)
+class _Runs:
+    """Straight runs of occupied cells, each direction's 8-connected segments judged apart."""
+
+    on: NDArray[np.bool_]  # on a run in some direction
+    static: NDArray[np.bool_]  # on a segment whose labels say static (a wall)
+    semi: NDArray[np.bool_]  # on a segment whose labels say semi-static (a bed's side), and on no static one
+    dynamic: NDArray[np.bool_]  # on a short segment whose labels say dynamic, and on no other
+    unlabelled: NDArray[np.bool_]  # on segments without enough labels only
+    #: per direction: (segment labels, unlabelled per segment, extent per segment in m)
+    segments: tuple[tuple[NDArray[np.int32], NDArray[np.bool_], NDArray[np.float64]], ...]
+
+
+def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArray[np.float32],
+          s_semi: NDArray[np.float32], lab: NDArray[np.float32]) -> _Runs:
+    """Straight runs of occupied cells (walls, pillar faces, a bed's or couch's sides), judged per direction.
+
+    Each direction's runs are split into their own 8-connected segments, so a bed's side that
+    meets a wall at a right angle is judged apart from the wall, while a wall's own segment
+    outvotes labels that bled onto part of it. A cell on a static segment in any direction is
+    static (the corner where a bed meets the wall stays wall).
+    """
+    m = occ.astype(np.uint8)
+    on = np.zeros(occ.shape, bool)
+    r_static = np.zeros(occ.shape, bool)
+    r_semi = np.zeros(occ.shape, bool)
+    r_dyn = np.zeros(occ.shape, bool)
+    r_lab = np.zeros(occ.shape, bool)
+    segments = []
+    for kern in _direction_kernels(cfg.wall_min_length / res):
+        run = cv2.morphologyEx(m, cv2.MORPH_OPEN, kern, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+        if not run.any():
+            continue
+        n, seg, stats, _ = cv2.connectedComponentsWithStats(run.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+        is_dyn, is_semi = _verdicts(seg, run, n - 1, s_dyn, s_semi, lab, cfg)
+        labelled = np.bincount(seg[run], lab[run], n) >= cfg.min_labelled_hits
+        labelled[0] = False
+        # no person is longer than structure_min_size: longer runs are never dropped
+        extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
+        is_dyn &= extent <= cfg.structure_min_size
+        on |= run
+        r_dyn |= run & is_dyn[seg]
+        r_semi |= run & is_semi[seg]
+        r_static |= run & (labelled & ~(is_dyn | is_semi))[seg]
+        r_lab |= run & labelled[seg]
+        segments.append((seg, ~labelled, extent.astype(np.float64)))
+    r_semi &= ~r_static
+    r_dyn &= ~(r_static | r_semi)
+    return _Runs(on, r_static, r_semi, r_dyn, on & ~r_lab, tuple(segments))
+
+
+def _class_table_or_none():  # type: ignore[no-untyped-def]
+    from ..classes import load_class_table
+    from ..errors import ConfigError
+
+    try:
+        return load_class_table()
+    except ConfigError:  # naming objects must not fail cleaning
+        return None
+
+
+def _class_sizes(layers: GridLayers, names: Sequence[str]) -> NDArray[np.float64]:
+    """Typical size (m) of the class of each class layer, and a last entry (1 m) for 'no class'."""
+    table = _class_table_or_none()
+    sizes = [table.size_of(names[c]) if table is not None else 1.0 for c in layers.class_ids]
+    return np.array(sizes + [1.0], np.float64)
+
+
+def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.intp]:
+    """Per cell, the class layer with the most hits among classes not known to be static or
+    dynamic (-1 where none): the class a movable cell is named by."""
+    if not layers.class_ids:
+        return np.full(layers.spec.shape, -1, np.intp)
+    mob = _class_mobility([names[c] for c in layers.class_ids])
+    keep = np.array([mb in (None, Mobility.SEMI_STATIC) for mb in mob], bool)
+    if not keep.any():
+        return np.full(layers.spec.shape, -1, np.intp)
+    counts = np.where(keep[:, None, None], layers.class_counts, 0)
+    best = np.argmax(counts, axis=0).astype(np.intp)
+    best[counts.max(axis=0) == 0] = -1
+    return best
+
+
+def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
+               cfg: CleaningConfig) -> NDArray[np.bool_]:
+    """Cells of people no camera labelled, found by their legs: two isolated blobs a person's leg wide
+    (``person_leg_width``), their centres ``person_leg_spacing`` apart, with nothing else near.
+
+    At LiDAR height a standing person is two legs 10-16 cm wide about 20 cm apart; furniture legs
+    are 2-8 cm wide and 40 cm or more apart, and each has neighbours (a chair's other legs). A blob
+    touching anything else is part of a larger blob, and one carrying camera labels that say it is
+    something else (``vetoed``) is never a leg. Walls (``structure``) and anything longer than
+    ``structure_min_size`` may be near: people stand by walls, beds and counters.
+    """
+    n, lab, stats, cent = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    if n <= 2:
+        return np.zeros(occ.shape, bool)
+    w = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
+    lo, hi = cfg.person_leg_width
+    s_lo, s_hi = cfg.person_leg_spacing
+    veto = np.bincount(lab[vetoed], minlength=n) > 0
+    veto[0] = True
+    xy = cent * res
+    reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
+
+    # walls and large furniture may be near (people stand by them); small blobs may not
+    structure = structure | (w > cfg.structure_min_size)[lab]
+    rad = int(math.ceil(reach / res))
+    yy, xx = np.mgrid[-rad:rad + 1, -rad:rad + 1]
+    disc = (xx * xx + yy * yy) * res * res <= reach * reach
+
+    def alone(p: NDArray[np.float64], blobs: Sequence[int]) -> bool:
+        """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame)."""
+        r, c = int(round(p[1] / res)), int(round(p[0] / res))
+        r0, c0 = r - rad, c - rad
+        win = lab[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]
+        d = disc[max(r0, 0) - r0:max(r0, 0) - r0 + win.shape[0], max(c0, 0) - c0:max(c0, 0) - c0 + win.shape[1]]
+        near = win[d & (win > 0) & ~structure[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]]
+        return bool(np.isin(near, blobs).all())
+
+    person = np.zeros(n, bool)
+    # two legs, two blobs
+    ids = np.flatnonzero((w >= lo) & (w <= hi) & ~veto)
+    if ids.size >= 2:
+        d = np.hypot(xy[ids, None, 0] - xy[None, ids, 0], xy[ids, None, 1] - xy[None, ids, 1])
+        for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
+            if alone(0.5 * (xy[ids[i]] + xy[ids[j]]), (ids[i], ids[j])):
+                person[ids[i]] = person[ids[j]] = True
+    # two legs close together merge into one blob: a leg wide across, two legs long, with a waist
+    # between them when seen from all around
+    for b in np.flatnonzero((w > hi) & (w <= s_hi + hi) & ~veto & ~person):
+        if not alone(xy[b], (b,)):
+            continue
+        pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
+        (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
+        if lo <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
+            person[b] = True
+    return person[lab]
+
+
+def _two_lobes(pts: NDArray[np.float64], res: float, min_width: float) -> bool:
+    """A blob (cell centres, m) shaped like two legs side by side: along its long axis it is at least
+    ``min_width`` wide at both ends and at most half that in between (a ring or a bar is not)."""
+    if pts.shape[0] < 6:
+        return False
+    c = pts - pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    along = c @ vt[0]
+    t = np.floor((along - along.min()) / res + 0.5).astype(int)  # cell centres fall on whole steps
+    u = c @ vt[1]
+    bins = t.max() + 1
+    if bins < 5:
+        return False
+    width = np.zeros(bins, int)  # cells across, per cell along
+    for k in range(bins):
+        sel = u[t == k]
+        width[k] = round(float(np.ptp(sel)) / res) + 1 if sel.size else 0
+    third = bins // 3
+    ends = min(width[:third + 1].max(), width[bins - third - 1:].max())
+    waist = width[third:bins - third].min()
+    return bool(ends * res >= 0.8 * min_width and 2 * waist <= ends)
+
+
+def _nearest_class(semi: NDArray[np.bool_], cls: NDArray[np.intp]) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
+    """Distance (cells) from every cell to the nearest ``semi`` cell, and that cell's ``cls``."""
+    if not semi.any():
+        return np.full(semi.shape, np.inf, np.float32), np.full(semi.shape, -1, np.intp)
+    dist, idx = cv2.distanceTransformWithLabels((~semi).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    # DIST_LABEL_PIXEL numbers the zero pixels (the semi cells) 1, 2, ... in raster order
+    order = cls.reshape(-1)[np.flatnonzero(semi.reshape(-1))]
+    return dist, order[np.maximum(idx, 1) - 1]
+
+
 def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
           class_names: Sequence[str] | None = None) -> CleanedMap:
     """Turn fused evidence into the cleaned map: people dropped, furniture flagged (see module doc).
@@ -215,57 +409,83 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
         dyn_share = np.where(lab > 0, s_dyn / lab, 0.0)
         semi_share = np.where(lab > 0, s_semi / lab, 0.0)
 
-    # walls: straight runs of occupied cells at least wall_min_length long, each 8-connected
-    # segment judged as a whole, so a long wall outvotes labels that bled onto part of it from
-    # furniture or people in front, and a couch's outline labelled semi-static stays so
-    wall = _straight_runs(occ, cfg.wall_min_length / res)
-    n_seg, seg, seg_stats, _ = cv2.connectedComponentsWithStats(wall.astype(np.uint8), connectivity=8,
-                                                                ltype=cv2.CV_32S)
-    seg_dyn, seg_semi = _verdicts(seg, wall, n_seg - 1, s_dyn, s_semi, lab, cfg)
-    # no person is longer than structure_min_size: longer runs are never dropped, whatever
-    # bled onto them (a wall seen once through a doorway with someone standing in it)
-    seg_extent = np.maximum(seg_stats[:, cv2.CC_STAT_WIDTH], seg_stats[:, cv2.CC_STAT_HEIGHT]) * res
-    seg_dyn &= seg_extent <= cfg.structure_min_size
-    dyn = wall & seg_dyn[seg]
-    semi = wall & seg_semi[seg]
+    # walls and furniture faces: straight runs, each direction's segments judged as a whole
+    runs = _runs(occ, cfg, res, s_dyn, s_semi, lab)
 
     # everything else decides by its own evidence when it has enough labels
-    rest = occ & ~wall
+    rest = occ & ~runs.on
     own_dyn = rest & enough & (dyn_share >= cfg.dynamic_fraction)
     own_semi = rest & enough & ~own_dyn & (semi_share >= cfg.semi_static_fraction)
     own_static = rest & enough & ~own_dyn & ~own_semi
     undecided = rest & ~enough
-    dyn |= own_dyn
-    semi |= own_semi
+    dyn = runs.dynamic | own_dyn
+    semi = runs.semi | own_semi
 
-    # blobs: occupied cells touching each other (8-connected). Unlabelled cells of a blob that
-    # holds a static wall or a static-labelled cell, or is longer than structure_min_size, stay static:
-    # labels of things standing against a wall do not leak into it. A small blob without any
-    # label is a furniture leg (the leg prior: at LiDAR height furniture is its legs).
-    n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8,
-                                                              ltype=cv2.CV_32S)
-    extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
-    anchored = np.bincount(blob[own_static | (wall & ~dyn & ~semi)], minlength=n_blob) > 0
-    labelled = np.bincount(blob[occ & (lab > 0)], minlength=n_blob) > 0
-    structure = anchored | (extent > cfg.structure_min_size)
-    leg = ~labelled & ~anchored & (extent <= cfg.leg_max_size)
-    structure[0] = leg[0] = False
-    inheriting = undecided & ~structure[blob]
+    # people: a person is one object. Occupied cells within person_radius of a cell labelled
+    # dynamic leave with it (the leg arcs no camera labelled), and so does a whole blob of touching
+    # cells up to person_max_size that holds dynamic evidence; walls (static runs), furniture
+    # faces (semi-static runs) and cells whose own labels clearly say something else stay
+    if dyn.any() and cfg.person_radius > 0:
+        # a furniture face's run may reach into the legs of someone standing against it: cells
+        # whose own labels say dynamic are not protected by it (a wall's run protects everything)
+        labelled_dyn = (s_dyn > 0) & (dyn_share >= cfg.dynamic_fraction)
+        clearly_other = (runs.static | (runs.semi & ~labelled_dyn) | own_semi
+                         | (own_static & (s_static >= 2 * cfg.min_labelled_hits) & (dyn_share < 0.1)))
+        free_to_go = occ & ~clearly_other
+        person = free_to_go & (_distance_to(dyn) <= cfg.person_radius / res)
+        n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(free_to_go.astype(np.uint8), connectivity=8,
+                                                                  ltype=cv2.CV_32S)
+        extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
+        carries = np.bincount(blob[dyn & free_to_go], minlength=n_blob) > 0
+        whole = carries & (extent <= cfg.person_max_size)
+        whole[0] = False
+        person |= whole[blob]
+        dyn |= person
+        semi &= ~dyn
+        undecided &= ~dyn
 
-    # objects: dynamic or semi-static cells and the undecided cells free to inherit, within
-    # object_link_distance of each other, judged by the sum of their labels; undecided cells
-    # take the verdict near cells that carry it
-    nodes = dyn | semi | inheriting
-    n_obj, obj = group_cells(nodes, cfg.object_link_distance / res)
-    if n_obj:
-        obj_dyn, obj_semi = _verdicts(obj, nodes, n_obj, s_dyn, s_semi, lab, cfg)
-        spread = cfg.label_spread_distance / res
-        near_dyn = _distance_to(dyn) <= spread
-        near_semi = _distance_to(semi) <= spread
-        dyn |= inheriting & obj_dyn[obj] & near_dyn
-        semi |= inheriting & obj_semi[obj] & near_semi & ~dyn
+    # people no camera labelled (standing all tour beside or behind the robot): their legs
+    if cfg.person_leg_spacing[1] > 0:
+        # (a blob touching a wall is part of the wall's blob, far too long to be a person)
+        vetoed = (lab >= cfg.min_labelled_hits) & ~(dyn_share >= cfg.dynamic_fraction)
+        legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg)
+        if legs.any():
+            dyn |= legs
+            semi &= ~dyn
+            undecided &= ~dyn
+
+    # furniture faces the camera did not label: an unlabelled straight run that meets a
+    # semi-static cell and is no longer than the longest piece of furniture is part of it
+    # (a bed's or couch's side seen only from where the camera did not look)
+    if semi.any() and cfg.face_max_length > 0:
+        touch = cv2.dilate(semi.astype(np.uint8), _KERNEL3).astype(bool)
+        faces = np.zeros(occ.shape, bool)
+        for seg, unlabelled, extent in runs.segments:
+            meets = np.bincount(seg[touch & (seg > 0)], minlength=unlabelled.size) > 0
+            grow = unlabelled & meets & (extent <= cfg.face_max_length)
+            grow[0] = False
+            faces |= grow[seg]
+        semi |= faces & runs.unlabelled & ~dyn
+
+    # unlabelled cells off the runs (legs the camera did not see, the far legs of a table) take a
+    # semi-static verdict from the nearest semi-static cell when it is nearer than any wall or
+    # static-labelled cell, and no farther than label_spread_distance, or for large furniture
+    # three quarters of its class's typical size (config/classes.yaml, sizes:)
+    if semi.any() and undecided.any():
+        sizes = _class_sizes(layers, names)
+        best = _best_semi_class(layers, names)
+        d_semi, near_cls = _nearest_class(semi, best)
+        reach = np.maximum(cfg.label_spread_distance, 0.75 * sizes[near_cls]) / res  # -1: the last entry
+        semi |= undecided & (d_semi <= reach) & (d_semi < _distance_to(runs.static | own_static))
     if cfg.leg_max_size > 0:
-        semi |= inheriting & leg[blob] & ~dyn
+        # the leg prior (off by default): a small isolated blob no camera labelled is a furniture leg
+        n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8,
+                                                                  ltype=cv2.CV_32S)
+        extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
+        labelled = np.bincount(blob[occ & (lab > 0)], minlength=n_blob) > 0
+        leg = ~labelled & (extent <= cfg.leg_max_size)
+        leg[0] = False
+        semi |= undecided & leg[blob] & ~dyn
 
     dropped = occ & dyn
     occupied = occ & ~dropped
@@ -280,43 +500,76 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
 
 def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
              link_cells: float) -> list[SemiStaticObject]:
-    n, lab = group_cells(semi, link_cells)
-    if not n:
+    """Group the semi-static cells into objects: per class, then by proximity and size.
+
+    Each cell is named by its own most-hit movable class, or else by the nearest named cell's.
+    Cells of one class join when they are at most ``0.85 x`` the class's typical size apart (the
+    legs of a table span its top; ``config/classes.yaml``, sizes:), and never less than
+    ``link_cells``; a group much longer than one object of its class (a row of chairs) is cut
+    along its length into as many objects as fit.
+    """
+    if not semi.any():
         return []
     spec = layers.spec
     res = spec.resolution
-    rows, cols = np.nonzero(lab)
-    ids = lab[rows, cols]
-    xs = spec.origin_x + (cols + 0.5) * res
-    ys = spec.origin_y + (rows + 0.5) * res
-    # class votes per object, preferring classes the class table calls semi-static
+    best = _best_semi_class(layers, names)
+    named = semi & (best >= 0)
+    if named.any():
+        _, near = _nearest_class(named, best)
+        cls = np.where(semi, near, -1)
+    else:
+        cls = np.full(semi.shape, -1, np.intp)
+    sizes = _class_sizes(layers, names)
     layer_names = [names[c] for c in layers.class_ids]
-    mob = _class_mobility(layer_names)
-    votes = np.zeros((n + 1, len(layer_names)))
-    for k in range(len(layer_names)):
-        votes[:, k] = np.bincount(ids, layers.class_counts[k][rows, cols].astype(np.float64), n + 1)
-    prefer = np.array([mb in (None, Mobility.SEMI_STATIC) for mb in mob], bool)
-    order = np.argsort(ids, kind="stable")
-    bounds = np.searchsorted(ids[order], np.arange(1, n + 2))
-    out = []
-    for i in range(1, n + 1):
-        sel = order[bounds[i - 1]:bounds[i]]
-        pts = np.column_stack([xs[sel], ys[sel]]).astype(np.float32)
-        v = votes[i]
-        if len(layer_names) and (v[prefer].sum() > 0 or v.sum() > 0):
-            vv = np.where(prefer, v, -1.0) if v[prefer].sum() > 0 else v
-            cname = layer_names[int(np.argmax(vv))]
-        else:
-            cname = "unknown"
-        _, (w, h), ang = cv2.minAreaRect(pts)
-        aw, ah = np.ptp(pts[:, 0]), np.ptp(pts[:, 1])
-        if w * h >= 0.9 * aw * ah:  # barely better than the map axes: keep those
-            w, h, ang = float(aw), float(ah), 0.0
-        w, h = w + res, h + res  # cell centres to cell extents
-        yaw = math.radians(ang)
-        if h > w:
-            w, h, yaw = h, w, yaw + math.pi / 2
-        yaw = (yaw + math.pi / 2) % math.pi - math.pi / 2
-        out.append(SemiStaticObject(cname, (float(xs[sel].mean()), float(ys[sel].mean())), (float(w), float(h)),
-                                    float(yaw), int(sel.size)))
+    labelled = layers.labelled
+    out: list[SemiStaticObject] = []
+    for k in np.unique(cls[semi]):
+        mask = semi & (cls == k)
+        size = float(sizes[k])
+        n, lab = group_cells(mask, max(link_cells, 0.85 * size / res))
+        rows, cols = np.nonzero(lab)
+        ids = lab[rows, cols]
+        order = np.argsort(ids, kind="stable")
+        bounds = np.searchsorted(ids[order], np.arange(1, n + 2))
+        cname = layer_names[k] if k >= 0 else "unknown"
+        for i in range(1, n + 1):
+            sel = order[bounds[i - 1]:bounds[i]]
+            xs = spec.origin_x + (cols[sel] + 0.5) * res
+            ys = spec.origin_y + (rows[sel] + 0.5) * res
+            for part in _split(np.column_stack([xs, ys]), size):
+                views = int(labelled[rows[sel][part], cols[sel][part]].max())
+                out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
+    out.sort(key=lambda o: (o.centroid[1], o.centroid[0]))
     return out
+
+
+def _split(pts: NDArray[np.float64], size: float) -> list[NDArray[np.intp]]:
+    """Indices of ``pts`` cut into pieces about ``size`` long along their principal axis (one piece
+    when they span less than 1.3 sizes)."""
+    if pts.shape[0] < 2:
+        return [np.arange(pts.shape[0])]
+    c = pts - pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    t = c @ vt[0]
+    length = float(np.ptp(t))
+    if length <= 1.3 * size:
+        return [np.arange(pts.shape[0])]
+    k = max(round(length / size), 2)
+    edges = t.min() + length * np.arange(1, k) / k
+    piece = np.searchsorted(edges, t)
+    return [np.flatnonzero(piece == j) for j in range(k) if (piece == j).any()]
+
+
+def _box(cname: str, pts: NDArray[np.float64], res: float, views: int) -> SemiStaticObject:
+    p32 = pts.astype(np.float32)
+    _, (w, h), ang = cv2.minAreaRect(p32)
+    aw, ah = np.ptp(pts[:, 0]), np.ptp(pts[:, 1])
+    if w * h >= 0.9 * aw * ah:  # barely better than the map axes: keep those
+        w, h, ang = float(aw), float(ah), 0.0
+    w, h = w + res, h + res  # cell centres to cell extents
+    yaw = math.radians(ang)
+    if h > w:
+        w, h, yaw = h, w, yaw + math.pi / 2
+    yaw = (yaw + math.pi / 2) % math.pi - math.pi / 2
+    return SemiStaticObject(cname, (float(pts[:, 0].mean()), float(pts[:, 1].mean())), (float(w), float(h)),
+                            float(yaw), int(pts.shape[0]), views)

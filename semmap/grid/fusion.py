@@ -271,12 +271,18 @@ class SemanticGrid:
             dx = np.where(ok, dx, 0.0)
             dy = np.where(ok, dy, 0.0)
         rng = np.hypot(dx, dy)
+        # evidence for and against a cell is judged over the same range: a return farther than
+        # max_range counts as "nothing within max_range" (it clears to max_range and is no hit),
+        # else far sightings of a person pacing add hits that free space never takes back
+        far = hit & (rng > cfg.max_range)
+        if far.any():
+            hit = hit & ~far
         # free length per beam: returns stop a margin short of their end point; beams without a
         # return clear to their end point (the painter's free-space range), at most
-        # max_free_range, but one with returns on both sides within dropout_guard beams (a
+        # max_range, but one with returns on both sides within dropout_guard beams (a
         # dropout) clears no further than they do, so it cannot punch a ray through a wall
         free_len = np.where(hit, rng - cfg.hit_free_margin, rng)
-        np.minimum(np.maximum(free_len, 0.0, out=free_len), cfg.max_free_range, out=free_len)
+        np.minimum(np.maximum(free_len, 0.0, out=free_len), cfg.max_range, out=free_len)
         k = int(cfg.dropout_guard)
         gaps = np.flatnonzero(~hit & ok) if k > 0 else ()
         if len(gaps) and len(gaps) < rng.size:
@@ -443,11 +449,12 @@ def estimate_grid_memory(cfg: GridConfig, max_range: float, n_classes: int) -> G
     """The memory a grid needs for its first window and one growth step (see :class:`GridMemoryEstimate`).
 
     ``max_range`` is the farthest return the LiDAR reports (its ``range_max``), m; a non-finite one
-    counts as ``cfg.max_free_range``. Every one of ``n_classes`` is assumed seen (one layer each).
+    counts as ``cfg.max_range``; the grid uses no return beyond ``cfg.max_range``. Every one of
+    ``n_classes`` is assumed seen (one layer each).
     Floats, so absurd settings give huge numbers (or inf) instead of overflowing.
     """
     res = float(cfg.resolution)
-    reach = float(max_range) if math.isfinite(max_range) and max_range > 0 else float(cfg.max_free_range)
+    reach = _reach(cfg, max_range)
     margin = float(cfg.tile_margin)
     per_cell = _CELL_BYTES + 2.0 * max(int(n_classes), 0)
 
@@ -462,6 +469,12 @@ def estimate_grid_memory(cfg: GridConfig, max_range: float, n_classes: int) -> G
     scratch = ns * ns * _SCRATCH_BYTES  # a scan's bounding box
     class_copy = n0 * n0 * 2.0 * max(int(n_classes), 0)
     return GridMemoryEstimate(side, first, scratch, class_copy, first + grown + scratch)
+
+
+def _reach(cfg: GridConfig, max_range: float) -> float:
+    """How far from the sensor the grid takes evidence: the LiDAR's range, at most ``cfg.max_range``."""
+    lidar = float(max_range) if math.isfinite(max_range) and max_range > 0 else math.inf
+    return min(lidar, float(cfg.max_range))
 
 
 def _machine_memory() -> tuple[float, str]:
@@ -507,7 +520,7 @@ def check_grid_memory(cfg: GridConfig, max_range: float, n_classes: int, availab
     if need <= limit:
         return int(need)
     side = est.window_m
-    reach = float(max_range) if math.isfinite(max_range) and max_range > 0 else float(cfg.max_free_range)
+    reach = _reach(cfg, max_range)
     needs = f"needs {_size(need)}, more than {budget}" if math.isfinite(need) else "needs more memory than exists"
     if cfg.tile_margin > max(reach, 50.0):
         fix = "use a smaller grid.tile_margin (10 m is typical)"
@@ -515,5 +528,5 @@ def check_grid_memory(cfg: GridConfig, max_range: float, n_classes: int, availab
         fix = "use a coarser grid.resolution (0.05 m is typical)"
     classes = f", {n_classes} classes" if n_classes else ""
     raise ConfigError(
-        f"grid.resolution {cfg.resolution:g} m (grid.tile_margin {cfg.tile_margin:g} m, LiDAR range {reach:g} m"
+        f"grid.resolution {cfg.resolution:g} m (grid.tile_margin {cfg.tile_margin:g} m, range {reach:g} m"
         f"{classes}): the grid's first {side:.4g} m x {side:.4g} m window {needs}; {fix}")

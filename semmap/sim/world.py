@@ -390,9 +390,13 @@ def table(oid: int, pose: Sequence[float], w: float = 1.4, d: float = 0.8,
     return _obj(oid, "dining table", Mobility.SEMI_STATIC, pose, parts)
 
 
-def bed(oid: int, pose: Sequence[float], w: float = 1.0, d: float = 2.1) -> WorldObject:
-    """A hospital bed: wheeled legs, a frame and mattress from 0.32 m, a headboard at +y."""
-    parts = _legs(w, d, 0.07, 0.05, 0.32, _METAL)
+def bed(oid: int, pose: Sequence[float], w: float = 1.0, d: float = 2.1, solid: bool = False) -> WorldObject:
+    """A bed, headboard at +y: a hospital bed on wheeled legs with a frame and mattress from 0.32 m,
+    or (``solid``) a divan whose base reaches the floor, so a 2D LiDAR sees its whole outline."""
+    if solid:
+        parts = [(rect(0, 0, w, d), 0.0, 0.3, _FABRIC_GREY)]
+    else:
+        parts = _legs(w, d, 0.07, 0.05, 0.32, _METAL)
     parts.append((rect(0, 0, w, d), 0.32, 0.6, _MATTRESS))
     parts.append((rect(0, 0.5 * d - 0.03, w, 0.06), 0.32, 1.05, _METAL))
     return _obj(oid, "bed", Mobility.SEMI_STATIC, pose, parts)

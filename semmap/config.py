@@ -324,7 +324,7 @@ class GridConfig(_Model):
     l_free: float = Field(0.4, gt=0, description="log-odds removed along a ray")
     l_min: float = Field(-2.0, lt=0, description="log-odds clamp, low")
     l_max: float = Field(3.5, gt=0, description="log-odds clamp, high")
-    max_range: float = Field(10.0, gt=0, le=1000,
+    max_range: float = Field(20.0, gt=0, le=1000,
                              validation_alias=AliasChoices("max_range", "max_free_range"),
                              description="evidence is taken only this far from the sensor, m: returns farther "
                                          "away count as 'nothing within max_range' (no hit; they clear free "

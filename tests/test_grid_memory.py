@@ -80,7 +80,7 @@ def test_an_absurd_resolution_is_refused_with_the_estimate_before_any_allocation
     msg = str(err.value)
     assert "\n" not in msg
     assert msg.startswith("grid.resolution 0.0001 m")
-    assert "first 40 m x 40 m window needs 65 TiB" in msg  # 400k cells a side (10 m range), 174 bytes each
+    assert "first 60 m x 60 m window needs 135 TiB" in msg  # 600k cells a side, 174 bytes each
     assert "more than the 16 GiB available" in msg
     assert "coarser grid.resolution (0.05 m is typical)" in msg
 

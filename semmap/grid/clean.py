@@ -252,6 +252,23 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
         r_static |= run & (labelled & ~(is_dyn | is_semi))[seg]
         r_lab |= run & labelled[seg]
         segments.append((seg, ~labelled, extent.astype(np.float64)))
+    # walls at any angle: the kernels above step by 22.5°, and a thin wall at 30° zig-zags off them.
+    # Long straight lines (Hough) judged one by one protect such walls from labels that bled onto
+    # them (a bed's mask over the wall the LiDAR sees beneath it)
+    lines = cv2.HoughLinesP(m, 1, math.pi / 180, threshold=max(int(0.5 * cfg.structure_min_size / res), 4),
+                            minLineLength=max(cfg.structure_min_size / res, 2.0), maxLineGap=2)
+    if lines is not None:
+        for x0, y0, x1, y1 in lines.reshape(-1, 4):
+            band = np.zeros(occ.shape, np.uint8)
+            cv2.line(band, (int(x0), int(y0)), (int(x1), int(y1)), 1, 1, cv2.LINE_8)
+            cells = band.astype(bool) & occ
+            t_lab = float(lab[cells].sum())
+            # only walls: a line the labels call movable is left to the rules for furniture
+            if (t_lab >= cfg.min_labelled_hits and s_semi[cells].sum() < cfg.semi_static_fraction * t_lab
+                    and s_dyn[cells].sum() < cfg.dynamic_fraction * t_lab):
+                on |= cells
+                r_lab |= cells
+                r_static |= cells
     r_semi &= ~r_static
     r_dyn &= ~(r_static | r_semi)
     return _Runs(on, r_static, r_semi, r_dyn, on & ~r_lab, tuple(segments))

@@ -12,8 +12,8 @@ from semmap.errors import BagError
 from semmap.io.mapserver import read_map
 from semmap.io.tum import read_tum
 from semmap.pipeline import build
-from semmap.register.metrics import ate_errors
 from semmap.sim.scenarios import demo
+from semmap.sim.score import score_map
 from semmap.sim.tour import simulate
 
 MAP_FILES = {"map.yaml", "map.pgm", "semantic.png", "semi_static.yaml", "semi_static.pgm",
@@ -32,22 +32,6 @@ def demo_map(demo_tour, tmp_path_factory):
     return build(demo_tour.out, tmp_path_factory.mktemp("maps") / "demo")
 
 
-def _scores(tour, mapdir):
-    from semmap.grid.metrics import ghost_rate, observable_cells, occupancy_f1
-    from semmap.sim.groundtruth import true_beam_end_points
-
-    gt = tour.out / "ground_truth"
-    est_t, est_p = read_tum(mapdir / "trajectory.tum")
-    ref_t, ref_p = read_tum(gt / "trajectory.tum")
-    err, t_gt_map = ate_errors(est_t, est_p, ref_t, ref_p)
-    occ, truth, swept = read_map(mapdir / "map.yaml"), read_map(gt / "occupancy.yaml"), read_map(
-        gt / "people_swept.yaml")
-    obs = observable_cells(truth.occupied, truth.spec, true_beam_end_points(tour.out))
-    f1 = occupancy_f1(occ.occupied, occ.spec, truth.occupied, truth.spec, obs, 1, t_gt_map)
-    return float(np.sqrt(np.mean(err ** 2))), f1, ghost_rate(occ.occupied, occ.spec, swept.occupied, swept.spec,
-                                                              t_gt_map)
-
-
 def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
     files = {p.relative_to(demo_map.out).as_posix() for p in demo_map.out.rglob("*") if p.is_file()}
     assert MAP_FILES <= files
@@ -63,10 +47,10 @@ def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
 
 
 def test_demo_map_matches_the_ground_truth(demo_tour, demo_map):
-    ate, f1, ghost = _scores(demo_tour, demo_map.out)
-    assert ate < 0.03
-    assert f1.precision > 0.95 and f1.recall > 0.9
-    assert ghost < 0.01  # the standing person and the walking one are gone
+    s = score_map(demo_tour.out, demo_map.out)
+    assert s["ate_rmse_m"] < 0.03
+    assert s["precision"] > 0.95 and s["recall"] > 0.9
+    assert s["ghost_rate"] < 0.01  # the standing person and the walking one are gone
 
 
 def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map, tmp_path):

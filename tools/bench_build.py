@@ -60,33 +60,13 @@ def run_build(tour: Path, out: Path, overrides: dict, config: str = "-", source:
 
 
 def score_simulated(tour: Path, mapdir: Path) -> dict:
-    import numpy as np
+    """ATE, occupied F1, ghost rate and semi-static precision/recall (recall over every observable
+    semi-static cell) of a map folder: :func:`semmap.sim.score.score_map`."""
+    from semmap.sim.score import score_map
 
-    from semmap.grid.metrics import ghost_rate, observable_cells, occupancy_f1, semi_static_scores
-    from semmap.io.mapserver import read_map
-    from semmap.io.tum import read_tum
-    from semmap.register.metrics import ate_errors
-    from semmap.sim.groundtruth import true_beam_end_points
-
-    gt = tour / "ground_truth"
-    est_t, est_p = read_tum(mapdir / "trajectory.tum")
-    ref_t, ref_p = read_tum(gt / "trajectory.tum")
-    err, t_gt_map = ate_errors(est_t, est_p, ref_t, ref_p)
-    occ = read_map(mapdir / "map.yaml")
-    semi = read_map(mapdir / "semi_static.yaml")
-    truth = read_map(gt / "occupancy.yaml")
-    truth_semi = read_map(gt / "semi_static.yaml")
-    swept = read_map(gt / "people_swept.yaml")
-    # observable truth: cells some true beam ended on (people excluded)
-    ends = true_beam_end_points(tour)
-    observable = observable_cells(truth.occupied, truth.spec, ends)
-    observable_semi = observable & truth_semi.occupied
-    f1 = occupancy_f1(occ.occupied, occ.spec, truth.occupied, truth.spec, observable, 1, t_gt_map)
-    ss = semi_static_scores(semi.occupied, semi.spec, truth_semi.occupied, truth_semi.spec, observable_semi, 1,
-                            t_gt_map)
-    ghost = ghost_rate(occ.occupied, occ.spec, swept.occupied, swept.spec, t_gt_map)
-    return {"ate_rmse_m": float(np.sqrt(np.mean(err ** 2))), "f1": f1.f1, "precision": f1.precision,
-            "recall": f1.recall, "ghost_rate": ghost, "semi_precision": ss.precision, "semi_recall": ss.recall}
+    s = score_map(tour, mapdir)
+    return {"ate_rmse_m": s["ate_rmse_m"], "f1": s["f1"], "precision": s["precision"], "recall": s["recall"],
+            "ghost_rate": s["ghost_rate"], "semi_precision": s["semi_precision"], "semi_recall": s["semi_recall_all"]}
 
 
 def score_legs(bag: Path, mapdir: Path) -> dict:

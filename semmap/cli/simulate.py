@@ -16,10 +16,12 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
         help="simulate an indoor tour and write it as a ROS1/ROS2 bag with ground truth",
         description="Simulate a robot tour (2D LiDAR, RGB camera with label images, wheel odometry, /tf) "
                     "and write it as a real bag plus exact ground truth and preview pictures.",
-        epilog=f"built-in scenarios: {', '.join(SCENARIOS)}",
+        epilog=f"built-in scenarios: {', '.join(SCENARIOS)}; random:SEED (e.g. random:7) builds a new random "
+               f"world per seed: rooms, furniture, people and sensor rig",
     )
-    p.add_argument("--scenario", metavar="NAME|WORLD.yaml",
-                   help="a built-in scenario, or a world file (e.g. ground_truth/world.yaml of an earlier run)")
+    p.add_argument("--scenario", metavar="NAME|random:SEED|WORLD.yaml",
+                   help="a built-in scenario, random:SEED for a procedural world, or a world file "
+                        "(e.g. ground_truth/world.yaml of an earlier run)")
     p.add_argument("--out", type=Path, metavar="PATH", help="output folder (must not exist)")
     p.add_argument("--list-scenarios", action="store_true", help="list the built-in scenarios and exit")
     p.add_argument("--format", dest="fmt", default="ros1", choices=["ros1", "mcap", "sqlite3"],
@@ -40,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     if args.list_scenarios:
         for name, factory in SCENARIOS.items():
             print(f"{name:<10} {factory().world.description}")
+        print(f"{'random:N':<10} a procedural world for every whole number N: 3-7 rooms, furniture against the "
+              f"walls, people standing, pausing, pacing and guiding, a random sensor rig")
         return 0
     if args.scenario is None or args.out is None:
         raise ConfigError("--scenario and --out are required (or use --list-scenarios)")

@@ -7,32 +7,42 @@ The camera sees ~56° ahead while the LiDAR sees 270°, so most returns carry no
    ``free_logodds`` free, the rest unknown. Cells that returned at least ``hit_ratio`` of the
    scans observing them (and ``min_hits`` times) are occupied too: a 3.5 cm chair leg fills a
    third of its cell, rays often pass it by, and the clamped log-odds forgets it.
-2. **Walls.** Straight runs of occupied cells at least ``wall_min_length`` long (morphological
-   openings with line kernels in 8 directions) are judged per 8-connected segment by the sum
-   of their labelled hits, so a long wall outvotes labels that bled onto part of it from
-   furniture or people in front (mask edges, corner-LiDAR parallax). Segments longer than
-   ``structure_min_size`` are never dropped as dynamic: no person is that long.
+2. **Walls and furniture faces.** Straight runs of occupied cells at least ``wall_min_length``
+   long (morphological openings with line kernels in 8 directions) are judged per direction,
+   each direction's 8-connected segments by the sum of their labelled hits: a long wall
+   outvotes labels that bled onto part of it, while a bed's side that meets the wall at a right
+   angle is judged apart from it. Walls at other angles are found as Hough lines at least
+   ``structure_min_size`` long; one whose labels say static protects its cells the same way.
+   Segments longer than ``structure_min_size`` are never dropped as dynamic.
 3. **Own evidence.** Any other occupied cell with at least ``min_labelled_hits`` labelled hits
    decides by itself: dynamic when the dynamic share of its labelled hits reaches
    ``dynamic_fraction``, else semi-static when the semi-static share reaches
    ``semi_static_fraction``, else static.
-4. **Objects.** Cells with too few labels take a verdict from their object: non-wall cells at
-   most ``object_link_distance`` apart belong together (a person's legs are ~0.2 m apart, a
-   chair's ~0.4 m), judged by the sum of their labels, and only within
-   ``label_spread_distance`` of a cell whose own evidence says the same (one labelled leg
-   carries a person or a chair, not a room). Cells touching a static wall or a
-   static-labelled cell, or in a blob longer than ``structure_min_size``, stay static: labels
-   of things standing against a wall do not leak into it.
-5. **Leg prior.** A small isolated blob (at most ``leg_max_size``) that the camera never
-   labelled is a furniture leg, flagged semi-static: at LiDAR height furniture is its legs,
-   and rooms the robot only looks into through a door are seen by the LiDAR alone.
-6. **Output.** Dynamic cells are dropped from ``occupied`` and become free (the floor a person
+4. **People, whole.** A person is one object: occupied cells within ``person_radius`` of a
+   dynamic cell leave with it (the leg arcs seen only where the camera did not look), and so
+   does a blob of touching cells up to ``person_max_size`` that holds dynamic evidence, unless
+   they are wall or their own labels say otherwise (a counter the person stood at stays).
+   People no camera saw are found by their legs: two isolated blobs a leg wide
+   (``person_leg_width``), ``person_leg_spacing`` apart, or one such blob two legs long; walls
+   and large furniture may be near, other small blobs (a chair's other legs) may not.
+5. **Furniture.** Unlabelled straight runs that meet a semi-static cell and are no longer than
+   ``face_max_length`` are the same piece of furniture (a bed's side the camera never saw).
+   Undecided cells away from walls are grouped (``object_link_distance``) and judged by the sum
+   of their labels (furniture seen in one frame). Remaining unlabelled cells take the flag of
+   the nearest semi-static cell when it is nearer than any wall or static-labelled cell and
+   within ``label_spread_distance``, or three quarters of its class's typical size
+   (``config/classes.yaml``, ``sizes:``: the far legs of a table).
+6. **No evidence, no flag.** Without camera labels nothing is called movable: a blob is not a
+   furniture leg because it is small (far walls' sparse returns are small too). The leg prior
+   (``leg_max_size`` > 0) restores that rule for those who want it.
+7. **Output.** Dynamic cells are dropped from ``occupied`` and become free (the floor a person
    stood on); semi-static cells stay occupied and are flagged; flagged cells are grouped into
-   :class:`SemiStaticObject` records.
+   :class:`SemiStaticObject` records per class, by proximity and typical size (a table's four
+   legs are one table, a row of chairs several chairs), each with how many painted scans saw it.
 
-What it cannot do: a person the camera never saw (standing in a room seen only through a door)
-has no dynamic evidence and stays, flagged semi-static by the leg prior if their legs are
-small and apart.
+What it cannot do: a person who never moved, whom no camera saw, and whose legs touch a wall
+or furniture, or who stands with feet together, looks like any other small obstacle and
+stays; furniture no camera saw stays static, unflagged.
 """
 
 from __future__ import annotations
@@ -358,7 +368,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             continue
         pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
-        if lo <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
+        # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round
+        if lo + res <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
             person[b] = True
     return person[lab]
 
@@ -483,6 +494,17 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
             grow[0] = False
             faces |= grow[seg]
         semi |= faces & runs.unlabelled & ~dyn
+
+    # furniture the camera saw in one or two frames: its cells hold a label or so each, too few to
+    # decide alone; undecided cells within object_link_distance of each other, away from walls,
+    # are judged by the sum of their labels, and those labelled semi-static become furniture
+    if undecided.any():
+        by_wall = cv2.dilate((runs.static | own_static).astype(np.uint8), _KERNEL3).astype(bool)
+        pool = undecided & ~by_wall
+        n_grp, grp = group_cells(pool, cfg.object_link_distance / res)
+        if n_grp:
+            _, grp_semi = _verdicts(grp, pool, n_grp, np.zeros_like(s_dyn), s_semi, lab, cfg)
+            semi |= pool & grp_semi[grp] & (s_semi > 0)
 
     # unlabelled cells off the runs (legs the camera did not see, the far legs of a table) take a
     # semi-static verdict from the nearest semi-static cell when it is nearer than any wall or

@@ -10,9 +10,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..records import GridSpec, Mobility
-from .world import World
+from .world import Person, World
 
-__all__ = ["grid_for_world", "rasterise", "occupancy_layers", "people_swept", "change_mask", "true_beam_end_points"]
+__all__ = ["grid_for_world", "rasterise", "occupancy_layers", "people_swept", "standing_stretches",
+           "people_standing", "object_cells", "change_mask", "true_beam_end_points"]
+
+#: a person counts as standing when still for at least this long, s
+MIN_STANDING_S = 5.0
 
 
 def grid_for_world(world: World, resolution: float, margin: float) -> GridSpec:
@@ -54,6 +58,62 @@ def people_swept(world: World, spec: GridSpec, duration_s: float, radius: float,
         if polys:
             swept |= rasterise(spec, polys).astype(np.uint8)
     return swept.astype(bool)
+
+
+def standing_stretches(person: Person, duration_s: float, step_s: float = 0.1,
+                       min_s: float = MIN_STANDING_S) -> list[tuple[float, float, float, float]]:
+    """Where and when a person stood still for ``min_s`` or longer: (t_start, t_end, x, y) each.
+
+    The person's state is sampled every ``step_s`` from 0 to ``duration_s``; a stretch is a run of
+    samples with walking speed 0 at one spot, and lasts (samples × ``step_s``), cut at the tour's end.
+    """
+    t = np.arange(0.0, duration_s + 1e-9, step_s)
+    if t.size == 0:
+        return []
+    st = np.array([person.state(float(x)) for x in t])
+    still = st[:, 3] == 0.0
+    moved = np.hypot(np.diff(st[:, 0]), np.diff(st[:, 1])) > 1e-3
+    # a run breaks where the person walks, or (between two samples) moved to another spot
+    brk = np.concatenate([[True], ~still[1:] | ~still[:-1] | moved])
+    out = []
+    starts = np.nonzero(brk & still)[0]
+    for k0 in starts:
+        k1 = k0 + 1
+        while k1 < len(t) and still[k1] and not brk[k1]:
+            k1 += 1
+        t0, t1 = float(t[k0]), min(float(t[k0]) + (k1 - k0) * step_s, duration_s)
+        if t1 - t0 >= min_s - 1e-9:
+            out.append((t0, t1, float(st[k0, 0]), float(st[k0, 1])))
+    return out
+
+
+def people_standing(world: World, spec: GridSpec, duration_s: float, height: float, step_s: float = 0.1,
+                    min_s: float = MIN_STANDING_S) -> NDArray[np.bool_]:
+    """The cells a person's legs covered at LiDAR ``height`` while standing still for ``min_s`` or longer.
+
+    What a map built from a 2D LiDAR could wrongly keep of a standing person: the legs' cut at the
+    scan plane (thin parts mark the cell holding their centre, as for furniture legs), not the
+    floor around them.
+    """
+    polys = []
+    for p in world.people:
+        seen: set[tuple[float, float]] = set()
+        for t0, _, x, y in standing_stretches(p, duration_s, step_s, min_s):
+            if (round(x, 4), round(y, 4)) in seen:
+                continue
+            seen.add((round(x, 4), round(y, 4)))
+            polys += [poly for poly, z0, z1, _ in p.body(t0) if z0 <= height <= z1]
+    return rasterise(spec, polys) if polys else np.zeros(spec.shape, bool)
+
+
+def object_cells(world: World, spec: GridSpec, height: float) -> NDArray[np.int64]:
+    """How many grid cells each world object's parts cover at ``height`` (0 where none spans it)."""
+    out = np.zeros(len(world.objects), np.int64)
+    for i, o in enumerate(world.objects):
+        polys = [p.polygon for p in o.parts if p.spans(height)]
+        if polys:
+            out[i] = int(rasterise(spec, polys).sum())
+    return out
 
 
 def change_mask(before: NDArray[np.bool_], after: NDArray[np.bool_]) -> NDArray[np.uint8]:

@@ -1,8 +1,12 @@
-"""Built-in scenarios: ``demo``, ``ward``, ``office``, ``occlusion``, ``ward_b``, ``office_b``.
+"""Built-in scenarios: ``demo``, ``ward``, ``office``, ``occlusion``, ``ward_b``, ``office_b``, and ``random:SEED``.
 
 Each returns a :class:`Scenario`: the world, configuration overrides for the
 simulator, and for the ``_b`` variants the base world they change. Geometry is
 fixed per scenario; the seed only drives sensor noise and odometry error.
+
+``random:SEED`` (for example ``random:7``) is a procedural world, new for every seed: a building
+of 3–7 rooms, a tour through them, furniture against the walls, people with roles and a random
+sensor rig (:func:`semmap.sim.procedural.random_world`). It is not listed in :data:`SCENARIOS`.
 """
 
 from __future__ import annotations
@@ -317,8 +321,17 @@ SCENARIOS: dict[str, Callable[[], Scenario]] = {
 
 
 def get_scenario(name: str) -> Scenario:
+    """A built-in scenario by name, or ``random:SEED`` for a procedural world."""
+    if name.startswith("random:"):
+        from .procedural import random_world, scenario_seed  # imports this module
+
+        seed = scenario_seed(name)
+        if seed is None:
+            raise ConfigError(f"unknown scenario {name!r}: a random world is random:SEED with a whole number "
+                              f"SEED of 0 or more, e.g. random:7")
+        return random_world(seed)
     factory = SCENARIOS.get(name)
     if factory is None:
         known = ", ".join(SCENARIOS)
-        raise ConfigError(f"unknown scenario {name!r} (built in: {known}; or give a world .yaml file)")
+        raise ConfigError(f"unknown scenario {name!r} (built in: {known}, random:SEED; or give a world .yaml file)")
     return factory()

@@ -13,6 +13,8 @@ Output folder (written to a temporary folder, then moved into place)::
         static.{pgm,yaml}       static structure only
         semi_static.{pgm,yaml}  movable furniture only
         people_swept.{pgm,yaml} cells people's bodies covered at some time
+        people_standing.{pgm,yaml} cells people's legs covered at LiDAR height while standing still 5 s or more
+        objects.json            per object and person: class, cells, LiDAR hits, camera frames, standing time
         trajectory.tum          true base_link poses in the world frame
         odometry.tum            the wheel odometry as published (odom frame)
         beams.npz               true range, instance, class and mobility of every beam
@@ -47,7 +49,17 @@ from ..io.mapserver import write_map
 from ..io.tum import write_tum
 from ..io.yamlio import write_yaml
 from ..records import Calibration, CameraIntrinsics, Image, Mobility, Scan
-from .groundtruth import change_mask, grid_for_world, occupancy_layers, people_swept
+from .groundtruth import (
+    MIN_STANDING_S,
+    change_mask,
+    grid_for_world,
+    object_cells,
+    occupancy_layers,
+    people_standing,
+    people_swept,
+    standing_stretches,
+)
+from .procedural import person_role
 from .raycast import PartSet
 from .robot import check_clearance, people_clearance, plan_tour, simulate_odometry
 from .scenarios import Scenario, get_scenario
@@ -57,6 +69,11 @@ from .world import World, load_world, world_to_dict
 __all__ = ["SimulationResult", "simulate", "resolve_scenario", "effective_config"]
 
 log = logging.getLogger(__name__)
+
+#: an object counts as seen in a camera frame when this many label pixels are its own
+_MIN_VISIBLE_PX = 20
+#: a scan is "paintable" by a camera frame stamped within this of it, s
+_PAINT_WINDOW_S = 0.1
 
 ProgressFn = Callable[[int, int], None]
 
@@ -220,6 +237,8 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     n_scans, n_beams = len(scan_times), lidar.angles.size
     gt_range = np.full((n_scans, n_beams), np.inf, np.float32)
     gt_row = np.full((n_scans, n_beams), -1, np.int32)
+    n_rows = len(rows)
+    cam_visible = np.zeros((len(cam_times), n_rows), bool)  # object-table rows each camera frame shows
     scan_pose = np.zeros((n_scans, 3))
     best: dict[str, Any] = {"score": -1.0}
     counts: dict[str, int] = {}
@@ -286,6 +305,9 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                 else:
                     lab = Image(stamp, c.camera.frame_id, frame.label, "mono16")
                 bag.image(c.camera.label_topic, t_bag, lab)
+                # labelled pixels per object-table row (row + 1; 0 collects floor, ceiling, unlabelled)
+                px = np.bincount(((frame.owner + 1) * (frame.label > 0)).ravel(), minlength=n_rows + 1)
+                cam_visible[i] = px[1:] >= _MIN_VISIBLE_PX
                 bag.camera_info(c.camera.info_topic, t_bag, stamp, c.camera.frame_id, intr)
                 topics = [image_topic, c.camera.label_topic, c.camera.info_topic]
                 score = _preview_score(frame.label)
@@ -308,6 +330,10 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
         write_map(gt / f"{name}.yaml", spec, occ)
     swept = people_swept(world, spec, duration, cfg.ground_truth.people_radius) & ~layers["occupancy"]
     write_map(gt / "people_swept.yaml", spec, swept)
+    standing = people_standing(world, spec, duration, lidar.height) & ~layers["occupancy"]
+    write_map(gt / "people_standing.yaml", spec, standing)
+    truth = _object_truth(world, spec, lidar.height, duration, gt_row, scan_times, cam_times, cam_visible)
+    (gt / "objects.json").write_text(_json_rows(truth), encoding="utf-8")
     write_tum(gt / "trajectory.tum", t0 + np.round(gt_times * ns).astype(np.int64), traj.pose(gt_times))
     write_tum(gt / "odometry.tum", t0 + np.round(odom.t * ns).astype(np.int64), odom.pose)
     np.savez_compressed(
@@ -375,6 +401,8 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
             "static": "ground_truth/static.yaml",
             "semi_static": "ground_truth/semi_static.yaml",
             "people_swept": "ground_truth/people_swept.yaml",
+            "people_standing": "ground_truth/people_standing.yaml",
+            "objects": "ground_truth/objects.json",
             "trajectory": "ground_truth/trajectory.tum",
             "odometry": "ground_truth/odometry.tum",
             "beams": "ground_truth/beams.npz",
@@ -396,6 +424,60 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                        lidar.angles, gt_range[k], gt_row[k], row_mobility,
                        title=f"{world.name}: camera at t = {best['t']:.1f} s")
     return SimulationResult(out, bag_path, fmt, world.name, seed, duration, counts)
+
+
+def _object_truth(world: World, spec: Any, height: float, duration: float, gt_row: np.ndarray,
+                  scan_times: np.ndarray, cam_times: np.ndarray, cam_visible: np.ndarray) -> dict[str, Any]:
+    """``objects.json``: what every object and person is, and how much of it the sensors saw.
+
+    Rows of ``gt_row`` and ``cam_visible`` index the object table: world objects, then people.
+    """
+    n_rows = cam_visible.shape[1]
+    hits = gt_row[gt_row >= 0]
+    lidar_hits = np.bincount(hits, minlength=n_rows)
+    cam_frames = cam_visible.sum(axis=0)
+    # beams on objects that a camera frame within the window shows (what the camera could label)
+    painted = np.zeros(n_rows, np.int64)
+    lo = np.searchsorted(cam_times, scan_times - _PAINT_WINDOW_S - 1e-9, side="left")
+    hi = np.searchsorted(cam_times, scan_times + _PAINT_WINDOW_S + 1e-9, side="right")
+    for k in range(len(scan_times)):
+        if hi[k] <= lo[k]:
+            continue
+        row = gt_row[k][gt_row[k] >= 0]
+        if row.size == 0:
+            continue
+        seen = cam_visible[lo[k]:hi[k]].any(axis=0)
+        painted += np.bincount(row[seen[row]], minlength=n_rows)
+    cells = object_cells(world, spec, height)
+    objects = []
+    for i, o in enumerate(world.objects):
+        objects.append({
+            "id": o.id, "name": o.name, "class": o.cls, "mobility": o.mobility.label,
+            "centroid": [round(float(v), 3) for v in o.centroid()], "cells": int(cells[i]),
+            "lidar_hits": int(lidar_hits[i]), "camera_frames": int(cam_frames[i]), "painted_hits": int(painted[i]),
+        })
+    people = []
+    for j, p in enumerate(world.people):
+        row = len(world.objects) + j
+        stood = sum(t1 - t0 for t0, t1, _, _ in standing_stretches(p, duration))
+        people.append({
+            "id": p.id, "name": p.name, "role": person_role(p.name), "standing_s": round(float(stood), 2),
+            "lidar_hits": int(lidar_hits[row]), "camera_frames": int(cam_frames[row]),
+            "painted_hits": int(painted[row]),
+        })
+    return {"min_standing_s": MIN_STANDING_S, "min_visible_px": _MIN_VISIBLE_PX, "objects": objects, "people": people}
+
+
+def _json_rows(data: dict[str, Any]) -> str:
+    """JSON with every entry of a list on its own line (a person reads it; ``json.load`` too)."""
+    lines = []
+    for key, value in data.items():
+        if isinstance(value, list):
+            rows = ",\n".join(f"    {json.dumps(v)}" for v in value)
+            lines.append(f"  {json.dumps(key)}: [\n{rows}\n  ]" if value else f"  {json.dumps(key)}: []")
+        else:
+            lines.append(f"  {json.dumps(key)}: {json.dumps(value)}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
 
 
 def _preview_score(label: np.ndarray) -> float:

@@ -487,10 +487,22 @@ def world_to_dict(world: World) -> dict[str, Any]:
                 "loop": p.loop,
                 "shirt": list(p.shirt),
                 "trousers": list(p.trousers),
+                "skin": list(p.skin),
+                "leg_radius": r(p.leg_radius),
+                "hip_half_width": r(p.hip_half_width),
+                "stride": r(p.stride),
+                "height": r(p.height),
             }
             for p in world.people
         ],
     }
+
+
+def _positive(d: dict[str, Any], key: str, default: float) -> float:
+    v = float(d.get(key, default))
+    if not (math.isfinite(v) and v > 0):
+        raise ConfigError(f"{key} must be a positive number of metres, got {d.get(key)!r}")
+    return v
 
 
 def world_from_dict(data: Any, source: str = "<world>") -> World:
@@ -529,6 +541,9 @@ def world_from_dict(data: Any, source: str = "<world>") -> World:
                     pauses=tuple((int(a), float(b)) for a, b in p.get("pauses", [])),
                     phase_s=float(p.get("phase_s", 0.0)), loop=bool(p.get("loop", True)),
                     shirt=_rgb(p.get("shirt", (180, 40, 40))), trousers=_rgb(p.get("trousers", (40, 45, 70))),
+                    skin=_rgb(p.get("skin", (224, 172, 140))),
+                    leg_radius=_positive(p, "leg_radius", 0.065), hip_half_width=_positive(p, "hip_half_width", 0.1),
+                    stride=_positive(p, "stride", 0.32), height=_positive(p, "height", 1.72),
                 ))
             except ConfigError as exc:
                 raise ConfigError(f"{source}: people[{i}]: {exc}") from None

@@ -266,7 +266,8 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
     # Long straight lines (Hough) judged one by one protect such walls from labels that bled onto
     # them (a bed's mask over the wall the LiDAR sees beneath it)
     lines = cv2.HoughLinesP(m, 1, math.pi / 180, threshold=max(int(0.5 * cfg.structure_min_size / res), 4),
-                            minLineLength=max(cfg.structure_min_size / res, 2.0), maxLineGap=2)
+                            minLineLength=max(cfg.structure_min_size / res, 2.0),
+                            maxLineGap=2)
     if lines is not None:
         for x0, y0, x1, y1 in lines.reshape(-1, 4):
             band = np.zeros(occ.shape, np.uint8)
@@ -514,8 +515,14 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
         sizes = _class_sizes(layers, names)
         best = _best_semi_class(layers, names)
         d_semi, near_cls = _nearest_class(semi, best)
-        reach = np.maximum(cfg.label_spread_distance, 0.75 * sizes[near_cls]) / res  # -1: the last entry
-        semi |= undecided & (d_semi <= reach) & (d_semi < _distance_to(runs.static | own_static))
+        reach = np.maximum(cfg.label_spread_distance, 0.9 * sizes[near_cls]) / res  # -1: the last entry
+        # cells touching a wall belong to it unless a semi-static cell is nearer; a blob standing
+        # apart (a bed's leg 5 cm from the wall its headboard touches) competes only with cells
+        # labelled static off the walls
+        wall = runs.static | own_static
+        by_wall = cv2.dilate(wall.astype(np.uint8), _KERNEL3).astype(bool)
+        d_static = np.where(by_wall, _distance_to(wall), _distance_to(own_static))
+        semi |= undecided & (d_semi <= reach) & (d_semi < d_static)
     if cfg.leg_max_size > 0:
         # the leg prior (off by default): a small isolated blob no camera labelled is a furniture leg
         n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8,
@@ -542,7 +549,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     """Group the semi-static cells into objects: per class, then by proximity and size.
 
     Each cell is named by its own most-hit movable class, or else by the nearest named cell's.
-    Cells of one class join when they are at most ``0.85 x`` the class's typical size apart (the
+    Cells of one class join when they are at most ``0.9 x`` the class's typical size apart (the
     legs of a table span its top; ``config/classes.yaml``, sizes:), and never less than
     ``link_cells``; a group much longer than one object of its class (a row of chairs) is cut
     along its length into as many objects as fit.
@@ -565,7 +572,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     for k in np.unique(cls[semi]):
         mask = semi & (cls == k)
         size = float(sizes[k])
-        n, lab = group_cells(mask, max(link_cells, 0.85 * size / res))
+        n, lab = group_cells(mask, max(link_cells, 0.9 * size / res))
         rows, cols = np.nonzero(lab)
         ids = lab[rows, cols]
         order = np.argsort(ids, kind="stable")

@@ -483,6 +483,15 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
             semi &= ~dyn
             undecided &= ~dyn
 
+    # cells seen free far more often than hit, with no camera label: someone who paused there
+    # (their hits keep the log-odds up only because they were the last word), not furniture
+    if cfg.transient_ratio > 0:
+        transient = occ & ~runs.on & (lab == 0) & (layers.free >= cfg.transient_ratio * layers.hits.astype(np.float32))
+        if transient.any():
+            dyn |= transient
+            semi &= ~dyn
+            undecided &= ~dyn
+
     # furniture faces the camera did not label: an unlabelled straight run that meets a
     # semi-static cell and is no longer than the longest piece of furniture is part of it
     # (a bed's or couch's side seen only from where the camera did not look)
@@ -519,7 +528,13 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
         # cells touching a wall belong to it unless a semi-static cell is nearer; a blob standing
         # apart (a bed's leg 5 cm from the wall its headboard touches) competes only with cells
         # labelled static off the walls
-        wall = runs.static | own_static
+        # (a straight run longer than any furniture is wall, labelled or not)
+        long_runs = np.zeros(occ.shape, bool)
+        for seg, unlabelled, extent in runs.segments:
+            far = unlabelled & (extent > max(cfg.face_max_length, cfg.structure_min_size))
+            far[0] = False
+            long_runs |= far[seg]
+        wall = runs.static | own_static | long_runs
         by_wall = cv2.dilate(wall.astype(np.uint8), _KERNEL3).astype(bool)
         d_static = np.where(by_wall, _distance_to(wall), _distance_to(own_static))
         semi |= undecided & (d_semi <= reach) & (d_semi < d_static)

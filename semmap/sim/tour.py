@@ -41,7 +41,7 @@ import numpy as np
 from ..classes import load_class_table
 from ..config import SimConfig, load_model, load_yaml, merge_overrides
 from ..errors import ConfigError, SemmapError
-from ..geometry import se2_to_se3, se3_from_xyz_rpy, se3_inverse
+from ..geometry import se2_compose, se2_to_se3, se3_from_xyz_rpy, se3_inverse
 from ..io.atomic import atomic_dir
 from ..io.bag import BAG_FORMATS, BagFormat, BagWriter
 from ..io.calibration import write_calibration
@@ -72,7 +72,7 @@ log = logging.getLogger(__name__)
 
 #: an object counts as seen in a camera frame when this many label pixels are its own
 _MIN_VISIBLE_PX = 20
-#: a scan is "paintable" by a camera frame stamped within this of it, s
+#: a scan is painted by the camera frame nearest it when that frame is stamped within this, s
 _PAINT_WINDOW_S = 0.1
 
 ProgressFn = Callable[[int, int], None]
@@ -240,6 +240,10 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     n_rows = len(rows)
     cam_visible = np.zeros((len(cam_times), n_rows), bool)  # object-table rows each camera frame shows
     scan_pose = np.zeros((n_scans, 3))
+    # beams whose end point lands on the object's own labelled pixels in the camera frame nearest
+    # the scan (within _PAINT_WINDOW_S, as semmap build pairs them): what the camera labelled
+    painted = np.zeros(n_rows, np.int64)
+    painter = _PaintedHits(camera, cfg.camera, lidar, cam_times, traj, painted)
     best: dict[str, Any] = {"score": -1.0}
     counts: dict[str, int] = {}
 
@@ -283,6 +287,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                 gt_range[i] = sweep.ranges
                 gt_row[i] = np.where(sweep.part >= 0, sweep.parts.owner[np.maximum(sweep.part, 0)], -1)
                 scan_pose[i] = poses[0]
+                painter.scan(t, poses, sweep.ranges, gt_row[i])
                 topics = [c.lidar.topic]
             else:  # camera
                 t = cam_times[i]
@@ -308,6 +313,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                 # labelled pixels per object-table row (row + 1; 0 collects floor, ceiling, unlabelled)
                 px = np.bincount(((frame.owner + 1) * (frame.label > 0)).ravel(), minlength=n_rows + 1)
                 cam_visible[i] = px[1:] >= _MIN_VISIBLE_PX
+                painter.frame(i, frame)
                 bag.camera_info(c.camera.info_topic, t_bag, stamp, c.camera.frame_id, intr)
                 topics = [image_topic, c.camera.label_topic, c.camera.info_topic]
                 score = _preview_score(frame.label)
@@ -332,7 +338,7 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     write_map(gt / "people_swept.yaml", spec, swept)
     standing = people_standing(world, spec, duration, lidar.height) & ~layers["occupancy"]
     write_map(gt / "people_standing.yaml", spec, standing)
-    truth = _object_truth(world, spec, lidar.height, duration, gt_row, scan_times, cam_times, cam_visible)
+    truth = _object_truth(world, spec, lidar.height, duration, gt_row, cam_visible, painted)
     (gt / "objects.json").write_text(_json_rows(truth), encoding="utf-8")
     write_tum(gt / "trajectory.tum", t0 + np.round(gt_times * ns).astype(np.int64), traj.pose(gt_times))
     write_tum(gt / "odometry.tum", t0 + np.round(odom.t * ns).astype(np.int64), odom.pose)
@@ -426,28 +432,76 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     return SimulationResult(out, bag_path, fmt, world.name, seed, duration, counts)
 
 
+class _PaintedHits:
+    """Counts, per object-table row, the true beams that land on that object's own labelled pixels in
+    the camera frame nearest their scan (within ``_PAINT_WINDOW_S``): the hits the camera labelled.
+
+    Scans and frames arrive in bag order; a scan waits for its frame, and the last frames are
+    kept (their owner images only) for scans that come after them.
+    """
+
+    def __init__(self, camera: CameraSim, cam_cfg: Any, lidar: LidarSim, cam_times: np.ndarray, traj: Any,
+                 out: np.ndarray) -> None:
+        self.camera, self.lidar, self.cam_times, self.traj, self.out = camera, lidar, cam_times, traj, out
+        k = np.asarray(cam_cfg.K, dtype=np.float64)
+        self.fx, self.fy, self.cx, self.cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        self.size = (cam_cfg.width, cam_cfg.height)
+        self.frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (owner & labelled, camera pose)
+        self.pending: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # index -> [(end points, rows)]
+
+    def scan(self, t: float, poses: np.ndarray, ranges: np.ndarray, rows: np.ndarray) -> None:
+        if self.cam_times.size == 0:
+            return
+        k = int(np.argmin(np.abs(self.cam_times - t)))
+        if abs(self.cam_times[k] - t) > _PAINT_WINDOW_S + 1e-9:
+            return
+        ok = (rows >= 0) & np.isfinite(ranges)
+        if not ok.any():
+            return
+        mount = se2_compose(poses[ok], self.lidar.mount)
+        head = mount[:, 2] + self.lidar.angles[ok]
+        ends = mount[:, :2] + ranges[ok, None] * np.column_stack([np.cos(head), np.sin(head)])
+        item = (ends, rows[ok])
+        if k in self.frames:
+            self._count(k, *item)
+        else:
+            self.pending.setdefault(k, []).append(item)
+
+    def frame(self, k: int, frame: Any) -> None:
+        owner = np.where(frame.label > 0, frame.owner, -1).astype(np.int32)
+        cam = se2_compose(self.traj.pose(float(self.cam_times[k])), self.camera.mount)
+        self.frames[k] = (owner, cam)
+        for item in self.pending.pop(k, []):
+            self._count(k, *item)
+        for old in [j for j in self.frames if j < k - 2]:  # later scans pair with recent frames only
+            del self.frames[old]
+
+    def _count(self, k: int, ends: np.ndarray, rows: np.ndarray) -> None:
+        owner, cam = self.frames[k]
+        c, s = math.cos(cam[2]), math.sin(cam[2])
+        dx, dy = ends[:, 0] - cam[0], ends[:, 1] - cam[1]
+        fwd, left = c * dx + s * dy, -s * dx + c * dy
+        z = np.maximum(fwd, 1e-9)
+        u = np.floor(self.fx * (-left) / z + self.cx).astype(np.int64)
+        v = np.floor(self.fy * (self.camera.height - self.lidar.height) / z + self.cy).astype(np.int64)
+        w, h = self.size
+        inside = (fwd > 0.05) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        on = np.zeros(rows.size, bool)
+        on[inside] = owner[v[inside], u[inside]] == rows[inside]
+        self.out += np.bincount(rows[on], minlength=self.out.size)
+
+
 def _object_truth(world: World, spec: Any, height: float, duration: float, gt_row: np.ndarray,
-                  scan_times: np.ndarray, cam_times: np.ndarray, cam_visible: np.ndarray) -> dict[str, Any]:
+                  cam_visible: np.ndarray, painted: np.ndarray) -> dict[str, Any]:
     """``objects.json``: what every object and person is, and how much of it the sensors saw.
 
-    Rows of ``gt_row`` and ``cam_visible`` index the object table: world objects, then people.
+    Rows of ``gt_row``, ``cam_visible`` and ``painted`` index the object table: world objects, then
+    people.
     """
     n_rows = cam_visible.shape[1]
     hits = gt_row[gt_row >= 0]
     lidar_hits = np.bincount(hits, minlength=n_rows)
     cam_frames = cam_visible.sum(axis=0)
-    # beams on objects that a camera frame within the window shows (what the camera could label)
-    painted = np.zeros(n_rows, np.int64)
-    lo = np.searchsorted(cam_times, scan_times - _PAINT_WINDOW_S - 1e-9, side="left")
-    hi = np.searchsorted(cam_times, scan_times + _PAINT_WINDOW_S + 1e-9, side="right")
-    for k in range(len(scan_times)):
-        if hi[k] <= lo[k]:
-            continue
-        row = gt_row[k][gt_row[k] >= 0]
-        if row.size == 0:
-            continue
-        seen = cam_visible[lo[k]:hi[k]].any(axis=0)
-        painted += np.bincount(row[seen[row]], minlength=n_rows)
     cells = object_cells(world, spec, height)
     objects = []
     for i, o in enumerate(world.objects):

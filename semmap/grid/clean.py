@@ -593,14 +593,36 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
         order = np.argsort(ids, kind="stable")
         bounds = np.searchsorted(ids[order], np.arange(1, n + 2))
         cname = layer_names[k] if k >= 0 else "unknown"
-        for i in range(1, n + 1):
-            sel = order[bounds[i - 1]:bounds[i]]
+        groups = [order[bounds[i - 1]:bounds[i]] for i in range(1, n + 1)]
+        groups = _attach_unseen(groups, rows, cols, labelled, 0.9 * size / res)
+        for sel in groups:
             xs = spec.origin_x + (cols[sel] + 0.5) * res
             ys = spec.origin_y + (rows[sel] + 0.5) * res
             for part in _split(np.column_stack([xs, ys]), size):
                 views = int(labelled[rows[sel][part], cols[sel][part]].max())
                 out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
     out.sort(key=lambda o: (o.centroid[1], o.centroid[0]))
+    return out
+
+
+def _attach_unseen(groups: list[NDArray[np.intp]], rows: NDArray[np.intp], cols: NDArray[np.intp],
+                   labelled: NDArray[np.uint32], reach_cells: float) -> list[NDArray[np.intp]]:
+    """Join each group without a camera-labelled cell (cells that took their flag from a neighbour)
+    to the nearest labelled group within ``reach_cells``: it is part of that object, not another."""
+    seen = [bool(labelled[rows[g], cols[g]].any()) for g in groups]
+    if all(seen) or not any(seen):
+        return groups
+    out = [g for g, v in zip(groups, seen) if v]
+    centres = np.array([[rows[g].mean(), cols[g].mean()] for g in out])
+    for g, v in zip(groups, seen):
+        if v:
+            continue
+        d = np.hypot(centres[:, 0] - rows[g].mean(), centres[:, 1] - cols[g].mean())
+        j = int(np.argmin(d))
+        if d[j] <= reach_cells:
+            out[j] = np.concatenate([out[j], g])
+        else:
+            out.append(g)
     return out
 
 

@@ -409,16 +409,55 @@ def _nearest_class(semi: NDArray[np.bool_], cls: NDArray[np.intp]) -> tuple[NDAr
     return dist, order[np.maximum(idx, 1) - 1]
 
 
+#: cells kept around the observed area when cleaning works on a crop of the grid's window
+_CROP_PAD = 16
+
+
 def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
           class_names: Sequence[str] | None = None) -> CleanedMap:
     """Turn fused evidence into the cleaned map: people dropped, furniture flagged (see module doc).
 
-    ``class_names`` names the class ids of ``layers`` (default: ``layers.class_names``).
+    ``class_names`` names the class ids of ``layers`` (default: ``layers.class_names``). The work
+    is done on the observed part of the grid (the fusion window keeps a margin of never-observed
+    cells around it); the masks returned cover the whole grid.
     """
     cfg = cfg if cfg is not None else CleaningConfig()
     names = tuple(class_names) if class_names is not None else layers.class_names
     if layers.class_ids and max(layers.class_ids) >= len(names):
         raise ValueError(f"class_names has {len(names)} names; the grid uses class id {max(layers.class_ids)}")
+    obs = layers.observed
+    h, w = obs.shape
+    rows, cols = np.flatnonzero(obs.any(axis=1)), np.flatnonzero(obs.any(axis=0))
+    if rows.size == 0:
+        r0, r1, c0, c1 = 0, h, 0, w
+    else:
+        r0, r1 = max(int(rows[0]) - _CROP_PAD, 0), min(int(rows[-1]) + _CROP_PAD + 1, h)
+        c0, c1 = max(int(cols[0]) - _CROP_PAD, 0), min(int(cols[-1]) + _CROP_PAD + 1, w)
+    if (r0, r1, c0, c1) == (0, h, 0, w):
+        return _clean(layers, cfg, names)
+    sub = _crop(layers, r0, r1, c0, c1)
+    cm = _clean(sub, cfg, names)
+
+    def full(mask: NDArray[np.bool_], fill: bool) -> NDArray[np.bool_]:
+        out = np.full((h, w), fill, bool)
+        out[r0:r1, c0:c1] = mask
+        return out
+
+    return CleanedMap(layers.spec, full(cm.occupied, False), full(cm.free, False), full(cm.unknown, True),
+                      full(cm.semi_static, False), full(cm.dynamic_removed, False), cm.objects)
+
+
+def _crop(layers: GridLayers, r0: int, r1: int, c0: int, c1: int) -> GridLayers:
+    sp = layers.spec
+    spec = GridSpec(sp.resolution, sp.origin_x + c0 * sp.resolution, sp.origin_y + r0 * sp.resolution,
+                    c1 - c0, r1 - r0)
+    win = (slice(r0, r1), slice(c0, c1))
+    return GridLayers(spec, layers.log_odds[win], layers.hits[win], layers.free[win],
+                      layers.mobility[(slice(None), *win)], layers.class_counts[(slice(None), *win)],
+                      layers.class_ids, layers.class_names, layers.n_scans)
+
+
+def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> CleanedMap:
     spec = layers.spec
     res = spec.resolution
     lo = layers.log_odds

@@ -285,6 +285,26 @@ def test_a_walking_person_is_cleared_by_free_space():
     assert cm.occupied[path].mean() < 0.01
 
 
+def test_someone_who_stepped_in_at_the_end_of_the_tour_is_dropped():
+    """A spot seen free for most of the tour, where someone stood for the last few scans (no camera):
+    the log-odds keep them because their hits came last; the counts say they were a passer-by."""
+    world = World().room(-4, -4, 4, 4)
+    g = SemanticGrid(GridConfig(), NAMES)
+    poses = [(0.0, -3.0, math.pi / 2 + 0.05 * math.sin(k)) for k in range(60)]
+    for p in poses[:50]:
+        g.integrate(np.asarray(p), world.scan(p, camera=False))
+    late = _person(World().room(-4, -4, 4, 4), (0.3, 1.5))
+    for p in poses[50:]:
+        g.integrate(np.asarray(p), late.scan(p, camera=False))
+    lay = g.layers()
+    spot = around(lay.spec, (0.3, 1.5), 0.25)
+    assert (lay.log_odds[spot] > CleaningConfig().occupied_logodds).any()  # the grid alone keeps them
+    cm = clean(lay, CleaningConfig(person_leg_spacing=(0.12, 0.0)), NAMES)  # not found by their legs
+    assert cm.occupied[spot].sum() == 0
+    off = clean(lay, CleaningConfig(person_leg_spacing=(0.12, 0.0), transient_ratio=0.0), NAMES)
+    assert off.occupied[spot].sum() > 0
+
+
 def _chair(world: World, centre, mob: int = SEMI) -> list[tuple[float, float]]:
     legs = [(centre[0] + dx, centre[1] + dy) for dx in (-0.19, 0.19) for dy in (-0.19, 0.19)]
     for c in legs:
@@ -405,6 +425,30 @@ def test_a_wall_stays_static_next_to_a_person_and_a_chair():
     assert cm.occupied[east].mean() > 0.97
     assert cm.semi_static[east].mean() < 0.05
     assert cm.occupied[around(lay.spec, (3.8, 0.0), 0.17)].sum() == 0  # the person is gone
+
+
+def test_a_wall_at_any_angle_keeps_labels_that_bled_onto_it_from_flagging_it(monkeypatch):
+    """A wall at 30°, where the kernels in 22.5° steps see only stubs: the stretch a bed's mask bled onto
+    (labelled semi-static by every view) stays static, because the wall's whole line says static."""
+    import cv2
+
+    world = World().room(-5, -5, 5, 5)
+    a, d = np.array([-3.5, -2.5]), np.array([math.cos(math.radians(30)), math.sin(math.radians(30))])
+    world.wall(a, a + 3.0 * d)
+    world.wall(a + 3.0 * d, a + 4.0 * d, 4, SEMI)  # bleed: the camera called this metre "bed"
+    world.wall(a + 4.0 * d, a + 7.0 * d)
+    n = np.array([-d[1], d[0]])
+    poses = [tuple(a + t * d - 2.0 * n) + (math.atan2(n[1], n[0]),) for t in np.linspace(0.5, 6.5, 25)]
+    lay = fuse(world, poses, noise=0.005, rng=np.random.default_rng(6)).layers()
+    xs, ys = lay.spec.cell_centres()
+    rel = np.stack([xs - a[0], ys - a[1]])
+    along, off = rel[0] * d[0] + rel[1] * d[1], rel[0] * n[0] + rel[1] * n[1]
+    bled = (along > 3.1) & (along < 3.9) & (np.abs(off) < 0.08)
+    cm = clean(lay, CleaningConfig(), NAMES)
+    assert cm.occupied[bled].sum() >= 15
+    assert not cm.semi_static[bled].any()
+    monkeypatch.setattr(cv2, "HoughLinesP", lambda *args, **kw: None)  # without the wall's line
+    assert clean(lay, CleaningConfig(), NAMES).semi_static[bled].any()
 
 
 def test_a_long_wall_is_never_dropped_by_labels_that_bled_onto_it():

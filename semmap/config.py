@@ -331,6 +331,12 @@ class GridConfig(_Model):
                                          "space to here), so hits and free space are judged over the same range "
                                          "(far sightings of a person would otherwise add hits that no free ray "
                                          "takes back). Older configs call it max_free_range")
+    no_return_range: float = Field(10.0, gt=0, le=1000, description="a beam with no return (REP-117 +inf: nothing "
+                                                                   "within the LiDAR's range) clears free space this "
+                                                                   "far, m, at most max_range: through a door into "
+                                                                   "an unmapped space, or from a beam lost on glass "
+                                                                   "or a dark surface, 'nothing seen' is weaker "
+                                                                   "evidence than a return")
     tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
     hit_free_margin: float = Field(0.05, ge=0, description="returns clear free space only to this far short "
                                                             "of their end point, m (keeps grazing rays from "

@@ -111,7 +111,7 @@ class _Pipeline:
         self.result: MapperResult | None = None
         table = load_class_table(cfg.segmentation.classes_file)
         self.painter = Painter(tour.T_base_lidar, tour.calibration, class_names, table, cfg.paint, cfg.sync,
-                               cfg.grid.max_range)
+                               cfg.grid.no_return_range)
         self.odom = OdomTrack(cfg.sync.max_odom_gap) if tour.topics.odometry else None
         self.segs: deque[Segmentation] = deque()
         self.frames_done = frames is None

@@ -47,6 +47,17 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
         if layers.class_counts.shape[0] and class_names:
             best = np.argmax(layers.class_counts, axis=0)
             has = layers.class_counts.max(axis=0) > 0
+            # a flagged cell no camera labelled (a bed's side the camera did not see) is drawn in
+            # the class of the nearest labelled one, as the object list names it
+            own = cleaned.semi_static & has
+            if own.any() and (cleaned.semi_static & ~own).any():
+                import cv2
+
+                _, idx = cv2.distanceTransformWithLabels((~own).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                         labelType=cv2.DIST_LABEL_PIXEL)
+                nearest = best.reshape(-1)[np.flatnonzero(own.reshape(-1))][np.maximum(idx, 1) - 1]
+                best = np.where(own, best, nearest)
+                has = has | cleaned.semi_static
             for k, cid in enumerate(layers.class_ids):
                 name = class_names[cid]
                 sel = cleaned.semi_static & has & (best == k)

@@ -116,7 +116,7 @@ def iter_painted(
             off = cfg.paint.model_copy(update={"occlusion_filter": False})
             self.raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names,
                                        load_class_table(cfg.segmentation.classes_file), off, cfg.sync,
-                                       cfg.grid.max_range)
+                                       cfg.grid.no_return_range)
             self.out: deque[PaintedPair] = deque()
 
         def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:

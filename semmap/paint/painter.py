@@ -131,14 +131,14 @@ class Painter:
         class_table: ClassTable,
         paint_cfg: PaintConfig,
         sync_cfg: SyncConfig,
-        max_range: float,
+        no_return_range: float,
     ) -> None:
         self.T_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)
         self.calib = calibration
         self.class_names = tuple(class_names)
         self.paint_cfg = paint_cfg
         self.sync_cfg = sync_cfg
-        self.max_range = max_range
+        self.no_return_range = no_return_range
         # label value → mobility and class id; value 0 (no object) is static structure
         mob = [Mobility.STATIC] + [class_table.mobility_of(n) for n in self.class_names]
         self._mobility_lut = np.array([int(m) for m in mob], dtype=np.uint8)
@@ -180,7 +180,7 @@ class Painter:
             no_return |= below
         self.stats.beams += r.size
         self.stats.below_range_min += int(np.count_nonzero(below))
-        free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.max_range), 0.0))
+        free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.no_return_range), 0.0))
         return layout.origin3 + layout.dirs_base * free[:, None], hit, r
 
     @staticmethod

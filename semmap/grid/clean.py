@@ -274,8 +274,13 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
             cv2.line(band, (int(x0), int(y0)), (int(x1), int(y1)), 1, 1, cv2.LINE_8)
             cells = band.astype(bool) & occ
             t_lab = float(lab[cells].sum())
-            # only walls: a line the labels call movable is left to the rules for furniture
-            if (t_lab >= cfg.min_labelled_hits and s_semi[cells].sum() < cfg.semi_static_fraction * t_lab
+            # only walls: a line the labels call movable is left to the rules for furniture; one
+            # without labels is a wall when it is longer than any furniture (a wall's far face,
+            # seen by the LiDAR alone from the next room)
+            longer = math.hypot(float(x1) - float(x0), float(y1) - float(y0)) * res > max(cfg.face_max_length,
+                                                                                          cfg.structure_min_size)
+            if (t_lab < cfg.min_labelled_hits and longer) or (
+                    t_lab >= cfg.min_labelled_hits and s_semi[cells].sum() < cfg.semi_static_fraction * t_lab
                     and s_dyn[cells].sum() < cfg.dynamic_fraction * t_lab):
                 on |= cells
                 r_lab |= cells

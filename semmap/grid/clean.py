@@ -56,6 +56,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..classes import ClassTable
 from ..config import CleaningConfig
 from ..records import GridSpec, Mobility
 from .fusion import GridLayers
@@ -154,28 +155,6 @@ def _distance_to(mask: NDArray[np.bool_]) -> NDArray[np.float32]:
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
-def _straight_runs(mask: NDArray[np.bool_], length_cells: float) -> NDArray[np.bool_]:
-    """Cells of ``mask`` on a straight run at least ``length_cells`` long, in 8 directions.
-
-    A morphological opening with a line kernel per direction (every 22.5°) keeps exactly the
-    cells covered by a full line of set cells: walls, pillar faces and couch sides, not legs.
-    """
-    n = max(round(length_cells), 2)
-    k = n | 1
-    c = k // 2
-    m = np.asarray(mask, dtype=np.uint8)
-    out = np.zeros(m.shape, np.uint8)
-    kernels = [np.ones((1, n), np.uint8), np.ones((n, 1), np.uint8)]
-    for deg in (22.5, 45.0, 67.5, 112.5, 135.0, 157.5):
-        kern = np.zeros((k, k), np.uint8)
-        dx, dy = c * math.cos(math.radians(deg)), c * math.sin(math.radians(deg))
-        cv2.line(kern, (round(c - dx), round(c - dy)), (round(c + dx), round(c + dy)), 1, 1, cv2.LINE_8)
-        kernels.append(kern)
-    for kern in kernels:
-        out |= cv2.morphologyEx(m, cv2.MORPH_OPEN, kern, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.astype(bool)
-
-
 def _verdicts(labels: NDArray[np.int32], member: NDArray[np.bool_], n: int, s_dyn: NDArray[np.float32],
               s_semi: NDArray[np.float32], lab: NDArray[np.float32],
               cfg: CleaningConfig) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
@@ -192,14 +171,8 @@ def _verdicts(labels: NDArray[np.int32], member: NDArray[np.bool_], n: int, s_dy
 
 
 def _class_mobility(names: Sequence[str]) -> list[Mobility | None]:
-    from ..classes import load_class_table
-    from ..errors import ConfigError
-
-    try:
-        table = load_class_table()
-    except ConfigError:  # naming objects must not fail cleaning
-        return [None] * len(names)
-    return [table.mobility.get(n) for n in names]
+    table = _class_table_or_none()
+    return [None if table is None else table.mobility.get(n) for n in names]
 
 
 def _direction_kernels(length_cells: float) -> list[NDArray[np.uint8]]:
@@ -290,13 +263,14 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
     return _Runs(on, r_static, r_semi, r_dyn, on & ~r_lab, tuple(segments))
 
 
-def _class_table_or_none():  # type: ignore[no-untyped-def]
+def _class_table_or_none() -> ClassTable | None:
+    """The shipped class table, or None when it cannot be read: naming objects must not fail cleaning."""
     from ..classes import load_class_table
     from ..errors import ConfigError
 
     try:
         return load_class_table()
-    except ConfigError:  # naming objects must not fail cleaning
+    except ConfigError:
         return None
 
 

@@ -433,10 +433,8 @@ def naive_map(tour: str | Path, resolution: float | None = None) -> NaiveMap:
     topic = str((manifest.get("topics") or {}).get("scan") or cfg.lidar.topic)
     t_base_lidar = se3_from_xyz_rpy(cfg.lidar.mount.xyz, cfg.lidar.mount.rpy)
     origin = t_base_lidar[:2, 3].copy()
-    # evidence over the LiDAR's whole range (semmap's grid setting was named max_free_range before
-    # it became max_range; either name is the same setting)
-    reach = "max_range" if "max_range" in GridConfig.model_fields else "max_free_range"
-    grid = SemanticGrid(GridConfig.model_validate({reach: cfg.lidar.range_max,
+    # evidence over the LiDAR's whole range
+    grid = SemanticGrid(GridConfig.model_validate({"max_range": cfg.lidar.range_max,
                                                    **({"resolution": resolution} if resolution else {})}))
 
     ref_t, ref_p = read_tum(tour / "ground_truth" / "trajectory.tum")

@@ -24,13 +24,15 @@ The camera sees ~56° ahead while the LiDAR sees 270°, so most returns carry no
    they are wall or their own labels say otherwise (a counter the person stood at stays).
    People no camera saw are found by their legs: two isolated blobs a leg wide
    (``person_leg_width``), ``person_leg_spacing`` apart, or one such blob two legs long; walls
-   and large furniture may be near, other small blobs (a chair's other legs) may not.
+   and large furniture may be near, other small blobs (a chair's other legs) may not. Unlabelled
+   cells off the walls that scans saw free ``transient_ratio`` times as often as they hit them
+   are someone who paused there, kept by the log-odds only because their hits came last.
 5. **Furniture.** Unlabelled straight runs that meet a semi-static cell and are no longer than
    ``face_max_length`` are the same piece of furniture (a bed's side the camera never saw).
    Undecided cells away from walls are grouped (``object_link_distance``) and judged by the sum
    of their labels (furniture seen in one frame). Remaining unlabelled cells take the flag of
    the nearest semi-static cell when it is nearer than any wall or static-labelled cell and
-   within ``label_spread_distance``, or three quarters of its class's typical size
+   within ``label_spread_distance``, or 0.9 x its class's typical size
    (``config/classes.yaml``, ``sizes:``: the far legs of a table).
 6. **No evidence, no flag.** Without camera labels nothing is called movable: a blob is not a
    furniture leg because it is small (far walls' sparse returns are small too). The leg prior
@@ -537,7 +539,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     # unlabelled cells off the runs (legs the camera did not see, the far legs of a table) take a
     # semi-static verdict from the nearest semi-static cell when it is nearer than any wall or
     # static-labelled cell, and no farther than label_spread_distance, or for large furniture
-    # three quarters of its class's typical size (config/classes.yaml, sizes:)
+    # 0.9 x its class's typical size (config/classes.yaml, sizes:)
     if semi.any() and undecided.any():
         sizes = _class_sizes(layers, names)
         best = _best_semi_class(layers, names)

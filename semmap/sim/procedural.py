@@ -1070,6 +1070,16 @@ def _commit(sc: _Scene, p: Person, robot_gap: float = PEOPLE_ROBOT_GAP_M) -> boo
     return False
 
 
+def _place_standing(rng: np.random.Generator, sc: _Scene, q: NDArray[np.float64]) -> bool:
+    """Place a whole-tour standing person at ``q`` if the route passes at the right distance and the
+    camera sees the spot long enough."""
+    if not STANDING_ROUTE_M[0] <= float(sc.route_dist(q)[0]) <= STANDING_ROUTE_M[1]:
+        return False
+    if not sc.seen_enough(q):
+        return False
+    return _commit(sc, _make(sc, "standing", [q], _body(rng)))
+
+
 def _standing_at_furniture(rng: np.random.Generator, sc: _Scene) -> bool:
     targets = [o for o in sc.objects if o.cls in ("bed", "dining table")]
     order = rng.permutation(len(targets))
@@ -1090,11 +1100,7 @@ def _standing_at_furniture(rng: np.random.Generator, sc: _Scene) -> bool:
                 continue
             if not AT_FURNITURE_M[0] - 0.01 <= float(sc.obstacles.dist(q)[0]) <= AT_FURNITURE_M[1] + 0.01:
                 continue
-            if not STANDING_ROUTE_M[0] <= float(sc.route_dist(q)[0]) <= STANDING_ROUTE_M[1]:
-                continue
-            if not sc.seen_enough(q):
-                continue
-            if _commit(sc, _make(sc, "standing", [q], _body(rng))):
+            if _place_standing(rng, sc, q):
                 return True
     return False
 
@@ -1110,11 +1116,7 @@ def _standing_at_wall(rng: np.random.Generator, sc: _Scene) -> bool:
         q = a + (b - a) * float(rng.uniform(0.1, 0.9)) + n * (0.5 * WALL_THICKNESS_M + float(rng.uniform(*AT_WALL_M)))
         if float(sc.obstacles.dist(q)[0]) < PERSON_CLEAR_M:
             continue
-        if not STANDING_ROUTE_M[0] <= float(sc.route_dist(q)[0]) <= STANDING_ROUTE_M[1]:
-            continue
-        if not sc.seen_enough(q):
-            continue
-        if _commit(sc, _make(sc, "standing", [q], _body(rng))):
+        if _place_standing(rng, sc, q):
             return True
     return False
 
@@ -1126,11 +1128,7 @@ def _standing_free(rng: np.random.Generator, sc: _Scene) -> bool:
         q = sc.path_xy[k] + float(rng.uniform(*STANDING_ROUTE_M)) * np.array([math.cos(ang), math.sin(ang)])
         if _room_of(sc.b, q) is None or float(sc.obstacles.dist(q)[0]) < PERSON_CLEAR_M + 0.1:
             continue
-        if not STANDING_ROUTE_M[0] <= float(sc.route_dist(q)[0]) <= STANDING_ROUTE_M[1]:
-            continue
-        if not sc.seen_enough(q):
-            continue
-        if _commit(sc, _make(sc, "standing", [q], _body(rng))):
+        if _place_standing(rng, sc, q):
             return True
     return False
 

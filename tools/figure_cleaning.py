@@ -49,7 +49,7 @@ def _crop_centres(tour: Path, truth) -> list[tuple[str, np.ndarray]]:  # type: i
         if o.cls not in ("bed", "couch") or objs.get(o.id, {}).get("painted_hits", 1) <= 0:
             continue
         pts = np.concatenate([p.polygon for p in o.parts])
-        gap = min(float(np.min(np.abs(_signed_distances(pts, w)))) for w in walls) if walls else np.inf
+        gap = min(float(np.min(np.abs(_box_distances(pts, w)))) for w in walls) if walls else np.inf
         key = (gap > 0.05, -objs.get(o.id, {}).get("painted_hits", 0))
         if best is None or key < best[0]:
             best = (key, o)
@@ -59,8 +59,8 @@ def _crop_centres(tour: Path, truth) -> list[tuple[str, np.ndarray]]:  # type: i
     return out
 
 
-def _signed_distances(pts: np.ndarray, wall) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """Distance (m) of points to a wall's polygon (0 inside), crude: to its vertices' bounding box."""
+def _box_distances(pts: np.ndarray, wall) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Distance (m) of points to the bounding box of a wall's parts (0 inside)."""
     poly = np.concatenate([p.polygon for p in wall.parts])
     lo, hi = poly.min(axis=0), poly.max(axis=0)
     d = np.maximum(np.maximum(lo - pts, pts - hi), 0.0)

@@ -63,7 +63,7 @@ from ..config import CleaningConfig
 from ..records import GridSpec, Mobility
 from .fusion import GridLayers
 
-__all__ = ["CleanedMap", "SemiStaticObject", "clean", "group_cells"]
+__all__ = ["CleanedMap", "SemiStaticObject", "clean", "group_cells", "nearest_value"]
 
 log = logging.getLogger(__name__)
 
@@ -379,14 +379,18 @@ def _two_lobes(pts: NDArray[np.float64], res: float, min_width: float) -> bool:
     return bool(ends * res >= 0.8 * min_width and 2 * waist <= ends)
 
 
-def _nearest_class(semi: NDArray[np.bool_], cls: NDArray[np.intp]) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
-    """Distance (cells) from every cell to the nearest ``semi`` cell, and that cell's ``cls``."""
-    if not semi.any():
-        return np.full(semi.shape, np.inf, np.float32), np.full(semi.shape, -1, np.intp)
-    dist, idx = cv2.distanceTransformWithLabels((~semi).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
+def nearest_value(mask: NDArray[np.bool_],
+                  values: NDArray[np.generic]) -> tuple[NDArray[np.float32], NDArray[np.generic]]:
+    """Distance (cells) from every cell to the nearest ``mask`` cell, and that cell's entry of ``values``.
+
+    Where ``mask`` is empty the distances are inf and the values -1.
+    """
+    if not mask.any():
+        return np.full(mask.shape, np.inf, np.float32), np.full(mask.shape, -1, values.dtype)
+    dist, idx = cv2.distanceTransformWithLabels((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
                                                 labelType=cv2.DIST_LABEL_PIXEL)
-    # DIST_LABEL_PIXEL numbers the zero pixels (the semi cells) 1, 2, ... in raster order
-    order = cls.reshape(-1)[np.flatnonzero(semi.reshape(-1))]
+    # DIST_LABEL_PIXEL numbers the zero pixels (the mask's cells) 1, 2, ... in raster order
+    order = values.reshape(-1)[np.flatnonzero(mask.reshape(-1))]
     return dist, order[np.maximum(idx, 1) - 1]
 
 
@@ -543,7 +547,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     if semi.any() and undecided.any():
         sizes = _class_sizes(layers, names)
         best = _best_semi_class(layers, names)
-        d_semi, near_cls = _nearest_class(semi, best)
+        d_semi, near_cls = nearest_value(semi, best)
         reach = np.maximum(cfg.label_spread_distance, 0.9 * sizes[near_cls]) / res  # -1: the last entry
         # cells touching a wall belong to it unless a semi-static cell is nearer; a blob standing
         # apart (a bed's leg 5 cm from the wall its headboard touches) competes only with cells
@@ -596,7 +600,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     best = _best_semi_class(layers, names)
     named = semi & (best >= 0)
     if named.any():
-        _, near = _nearest_class(named, best)
+        _, near = nearest_value(named, best)
         cls = np.where(semi, near, -1)
     else:
         cls = np.full(semi.shape, -1, np.intp)

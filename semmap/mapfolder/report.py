@@ -51,12 +51,9 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
             # the class of the nearest labelled one, as the object list names it
             own = cleaned.semi_static & has
             if own.any() and (cleaned.semi_static & ~own).any():
-                import cv2
+                from ..grid.clean import nearest_value
 
-                _, idx = cv2.distanceTransformWithLabels((~own).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                         labelType=cv2.DIST_LABEL_PIXEL)
-                nearest = best.reshape(-1)[np.flatnonzero(own.reshape(-1))][np.maximum(idx, 1) - 1]
-                best = np.where(own, best, nearest)
+                best = np.where(own, best, nearest_value(own, best)[1])
                 has = has | cleaned.semi_static
             for k, cid in enumerate(layers.class_ids):
                 name = class_names[cid]

@@ -266,6 +266,11 @@ class PaintConfig(_Model):
                                                                "off the mask is background behind it, m (0: off)")
     occlusion_line_depth_margin: float = Field(0.15, ge=0, description="occlusion filter: such background is hidden "
                                                                       "by mask points at least this much nearer, m")
+    occlusion_object_extent: float = Field(1.5, ge=0, description="occlusion filter: an object spans at most this "
+                                                                  "many times its class's typical size (class "
+                                                                  "table, sizes:); a point of its mask farther "
+                                                                  "than that from a nearer point of the mask, "
+                                                                  "behind it, is hidden (0: off)")
 
 
 class EkfConfig(_Model):
@@ -391,6 +396,11 @@ class CleaningConfig(_Model):
                                                                    "flagged semi-static takes its flag when no longer "
                                                                    "than this (a bed's or couch's side the camera did "
                                                                    "not see), m (0: off)")
+    face_size_factor: float = Field(1.5, ge=0, le=100, description="a straight run whose labels say semi-static is "
+                                                                    "at most this many times the typical size of "
+                                                                    "the largest class labelling it (class table, "
+                                                                    "sizes:); a longer one is a wall the labels "
+                                                                    "bled onto (0: off)")
     person_leg_width: tuple[float, float] = Field((0.1, 0.25), description="a blob no camera labelled that is this "
                                                                              "wide (min, max) may be a person's leg, m")
     person_leg_spacing: tuple[float, float] = Field((0.12, 0.4), description="two such blobs this far apart (centre "

@@ -226,3 +226,44 @@ def test_mask_regions_filled_on_demand_join_exactly_the_pixels_connected_compone
         np.testing.assert_array_equal(comp.joined(a, b), want)
         seen += int(want.sum())
     assert 0 < seen < 12 * 200  # both outcomes were asked about
+
+
+BED = 3
+
+
+def test_a_cabinet_seen_under_a_bed_from_across_the_room_loses_the_bed_label():
+    """A bed on legs 3 m away, one leg in the LiDAR's sight; under its frame the LiDAR sees a cabinet
+    10 m away, standing 0.5 m in front of the wall beside it, all of it on the bed's mask. No other
+    rule reaches it (the cabinet is nearer than the wall on either side, so to the LiDAR it is an
+    object of its own); a bed spans no more than 1.5 x 2.3 m, so the cabinet cannot be the bed."""
+    leg = person_at(3.0, half_width=0.03, n=3, y0=0.3)
+    cabinet = wall_at(10.0, -1.6, -0.4)
+    wall = wall_at(10.5, -3.0, -1.75) + wall_at(10.5, -0.25, 1.0)
+    pts = by_bearing(leg + cabinet + wall)
+    u_bed = column(np.array([(3.0, -0.6), (3.0, 0.35)]))
+    xy, labels, uv, footprint, img = scene(pts, mask_between(u_bed.min(), u_bed.max(), BED))
+    is_cab = (pts[:, 0] > 9.9) & (pts[:, 0] < 10.1)
+    on_bed = is_cab & (labels == BED)
+    assert on_bed.sum() > 10 and (on_bed == is_cab).all()
+    extent = np.array([np.inf, np.inf, 0.75, 1.5 * 2.3])  # per label value: none, person, chair, bed
+    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams(), extent)
+    assert hidden[on_bed].all()
+    assert not hidden[pts[:, 0] < 3.1].any()  # the bed's leg keeps its label
+    # without the object's extent nothing hides the cabinet
+    before = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams())
+    assert not before[on_bed].any()
+
+
+def test_a_far_chair_seen_between_the_legs_of_a_near_one_keeps_its_label():
+    """Two chairs 2 m apart on one chair mask: the far chair's legs, farther from the near chair than
+    a chair spans, are legs seen through the gap (a run no wider than a leg), not background."""
+    near = person_at(2.0, half_width=0.015, n=3, y0=-0.2) + person_at(2.0, half_width=0.015, n=3, y0=0.2)
+    far = person_at(4.0, half_width=0.015, n=3, y0=0.05)
+    wall = [q for q in wall_at(6.0, -1.0, 1.0) if min(abs(q[1] - y * 1.5) for y in (-0.1, 0.0, 0.1, 0.2)) > 0.1]
+    pts = by_bearing(near + far + wall)
+    u = column(np.array([(2.0, -0.25), (2.0, 0.25)]))
+    xy, labels, uv, footprint, img = scene(pts, mask_between(u.min(), u.max(), CHAIR))
+    extent = np.array([np.inf, np.inf, 0.75, 1.5 * 2.3])
+    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams(), extent)
+    is_far = (pts[:, 0] > 3.9) & (pts[:, 0] < 4.1)
+    assert (labels[is_far] == CHAIR).all() and not hidden[is_far].any()

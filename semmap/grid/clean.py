@@ -205,13 +205,16 @@ class _Runs:
 
 
 def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArray[np.float32],
-          s_semi: NDArray[np.float32], lab: NDArray[np.float32]) -> _Runs:
+          s_semi: NDArray[np.float32], lab: NDArray[np.float32], longest: NDArray[np.float32] | None = None) -> _Runs:
     """Straight runs of occupied cells (walls, pillar faces, a bed's or couch's sides), judged per direction.
 
     Each direction's runs are split into their own 8-connected segments, so a bed's side that
     meets a wall at a right angle is judged apart from the wall, while a wall's own segment
     outvotes labels that bled onto part of it. A cell on a static segment in any direction is
-    static (the corner where a bed meets the wall stays wall).
+    static (the corner where a bed meets the wall stays wall). ``longest`` (per cell, m; 0 where no
+    movable class named it): a segment whose labels say semi-static but which is longer than the
+    longest object its cells' classes make is a wall the labels bled onto (seen under a bed from
+    across the room), and is static.
     """
     m = occ.astype(np.uint8)
     on = np.zeros(occ.shape, bool)
@@ -231,6 +234,10 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
         # no person is longer than structure_min_size: longer runs are never dropped
         extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
         is_dyn &= extent <= cfg.structure_min_size
+        if longest is not None:
+            most = np.zeros(n, np.float32)
+            np.maximum.at(most, seg[run], longest[run])
+            is_semi &= (most == 0) | (extent <= most)
         on |= run
         r_dyn |= run & is_dyn[seg]
         r_semi |= run & is_semi[seg]
@@ -344,12 +351,17 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             if alone(0.5 * (xy[ids[i]] + xy[ids[j]]), (ids[i], ids[j])):
                 person[ids[i]] = person[ids[j]] = True
     # two legs close together merge into one blob: a leg wide across, two legs long, with a waist
-    # between them when seen from all around
-    for b in np.flatnonzero((w > hi) & (w <= s_hi + hi) & ~veto & ~person):
+    # between them when seen from all around. A blob no longer than one leg is wide is two legs only
+    # when it has that waist (a post or a bin that size is round)
+    for b in np.flatnonzero((w >= lo) & (w <= s_hi + hi) & ~veto & ~person):
         if not alone(xy[b], (b,)):
             continue
         pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
+        if w[b] <= hi:
+            # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
+            person[b] = min(bw, bh) >= lo and _two_lobes(pts, res, lo)
+            continue
         # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round
         if lo + res <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
             person[b] = True
@@ -463,7 +475,11 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
         semi_share = np.where(lab > 0, s_semi / lab, 0.0)
 
     # walls and furniture faces: straight runs, each direction's segments judged as a whole
-    runs = _runs(occ, cfg, res, s_dyn, s_semi, lab)
+    longest = None
+    if cfg.face_size_factor > 0 and layers.class_ids:
+        best = _best_semi_class(layers, names)
+        longest = np.where(best >= 0, cfg.face_size_factor * _class_sizes(layers, names)[best], 0.0).astype(np.float32)
+    runs = _runs(occ, cfg, res, s_dyn, s_semi, lab, longest)
 
     # everything else decides by its own evidence when it has enough labels
     rest = occ & ~runs.on
@@ -491,6 +507,18 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
         extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
         carries = np.bincount(blob[dyn & free_to_go], minlength=n_blob) > 0
         whole = carries & (extent <= cfg.person_max_size)
+        whole[0] = False
+        person |= whole[blob]
+        # a person the camera also saw through a table's or a bed's mask: a blob up to person_max_size
+        # whose labels, summed, say dynamic leaves whole, cells labelled as furniture included
+        mixed = free_to_go | (own_semi & ~runs.on)
+        n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(mixed.astype(np.uint8), connectivity=8,
+                                                                  ltype=cv2.CV_32S)
+        extent = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
+        t_dyn = np.bincount(blob[mixed], s_dyn[mixed], n_blob)
+        t_lab = np.bincount(blob[mixed], lab[mixed], n_blob)
+        whole = (extent <= cfg.person_max_size) & (t_lab >= cfg.min_labelled_hits) & (
+            t_dyn >= cfg.dynamic_fraction * t_lab)
         whole[0] = False
         person |= whole[blob]
         dyn |= person

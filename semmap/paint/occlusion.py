@@ -34,6 +34,14 @@ same mask lie nearer the camera and cover it:
    the mask, so it is structure the mask overlaps, and a point of the mask stands in front
    of it by at least ``line_depth_margin`` (less than the depth margin: a bed pushed against
    a wall), on the same connected region of the mask.
+5. **Deeper than the object.** An object of a class with a typical size (``sizes:`` in the
+   class table) spans at most ``object_extent`` times that size. ``p`` is hidden when a
+   nearer point ``q`` of the same connected region of the mask lies farther from ``p`` than
+   that span, and no farther than it to the side of ``p``'s ray: ``p`` cannot be the object
+   ``q`` is on, and that object stands in front of ``p``. This is the wall or cabinet seen
+   under a bed's frame from across the room; rules 2-4 do not reach it when that stretch of
+   wall stands in front of the wall beside it (a cabinet's face), or when the bed's other
+   legs are out of the LiDAR's sight.
 
 A run of scan points nearer than the points on either side of it (a chair's rear leg seen
 through the gap between its front legs) is a foreground object to the LiDAR; only rule 1 may
@@ -88,7 +96,8 @@ class OcclusionParams:
 
 def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDArray[np.intp],
                   uv: NDArray[np.float64], targets: NDArray[np.bool_], footprint: NDArray[np.float64],
-                  label_image: NDArray[np.integer], p: OcclusionParams) -> NDArray[np.bool_]:
+                  label_image: NDArray[np.integer], p: OcclusionParams,
+                  extent: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
     """Which points are hidden from the camera by nearer points of the same mask.
 
     ``xy`` (K, 2): the points in the LiDAR plane, every point in front of the camera whose
@@ -99,7 +108,8 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     their pixels (column, row), clamped to the image (whole pixels if integers); ``targets``
     (K,): the points to judge (inside the image, on a mask); ``footprint`` (K,): each point's
     lateral extent, m (the LiDAR beam spacing at its range); ``label_image``: the
-    segmentation. Returns a (K,) mask, true only for targets.
+    segmentation; ``extent``: per label value, the most an object of that label spans, m (inf:
+    unbounded, such as structure; None: rule 5 off). Returns a (K,) mask, true only for targets.
     """
     k = xy.shape[0]
     hidden = np.zeros(k, bool)
@@ -210,6 +220,23 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
             c, j = c[line], j[line]
             if c.size:
                 hid_t[c] = masks.joined(t[c], o[j])
+    # 5. deeper than the object: a nearer point of the mask, farther from p than the object spans and
+    #    no farther than that from p's ray, is on an object p cannot be part of, standing in front of p
+    if extent is not None and not hid_t.all():
+        ext = extent[np.minimum(labels[t], extent.size - 1)]
+        # ... on a surface, not a leg: a far chair's leg seen between the legs of a nearer one is itself
+        span = np.hypot(*(xy[last] - xy[first]).T)
+        c = np.flatnonzero(~hid_t & np.isfinite(ext) & (span[run[t]] > _LEG))
+        if c.size:
+            e = ext[c][:, None]
+            apart = np.hypot(xy[t[c], 0][:, None] - xy[o, 0][None, :], xy[t[c], 1][:, None] - xy[o, 1][None, :])
+            front = same[c] & (d_o < d_t[c][:, None]) & (lateral[c] <= e) & (apart > e)
+            score = np.where(front, ada[c], np.inf)
+            j = score.argmin(axis=1)
+            has = score.min(axis=1) < np.inf
+            c, j = c[has], j[has]
+            if c.size:
+                hid_t[c] = masks.joined(t[c], o[j])
     hidden[t] = hid_t
     return hidden
 
@@ -234,6 +261,10 @@ def _runs(xy: NDArray[np.float64], footprint: NDArray[np.float64],
     last[:-1] = ends
     return run, first, last
 
+
+#: m, the widest a leg (a chair's, a table's, a bed's) is seen at LiDAR height: a run of points no longer
+#: than this, behind a nearer object of its class, may be a leg of another such object seen between its legs
+_LEG = 0.25
 
 _ROW_STEPS = np.linspace(0.0, 1.0, 24)[None, :]  # where row_joined samples the row between two columns
 

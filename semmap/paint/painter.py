@@ -156,6 +156,11 @@ class Painter:
         #: the last scan's projection into the camera (None when it was not painted)
         self.last_view: CameraView | None = None
         self._occlusion = OcclusionParams.from_config(paint_cfg) if paint_cfg.occlusion_filter else None
+        # per label value, the most an object of that class spans (inf: structure, or no typical size)
+        self._extent: NDArray[np.float64] | None = None
+        if paint_cfg.occlusion_object_extent > 0:
+            self._extent = np.array([np.inf] + [paint_cfg.occlusion_object_extent * class_table.sizes[n]
+                                                if n in class_table.sizes else np.inf for n in self.class_names])
         if calibration is not None:
             self._eye = se3_inverse(self.T_cam_base)[:2, 3].copy()  # the camera centre in the base frame
 
@@ -314,7 +319,7 @@ class Painter:
             # visibility from the camera's own viewpoint, at the image time, in the LiDAR plane
             s_idx = sel[seen]
             hidden = hidden_points(xy[s_idx], eye, labels, px[seen], ok[seen],
-                                   footprint[s_idx], seg.label, self._occlusion)
+                                   footprint[s_idx], seg.label, self._occlusion, self._extent)
         in_img = ok[seen]
         labels, hidden = labels[in_img], hidden[in_img]
         idx = sel[ok]

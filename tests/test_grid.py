@@ -485,6 +485,26 @@ def test_a_person_standing_feet_together_where_no_camera_looked_leaves():
     assert lay.hits[body].sum() > 0 and cm.occupied[body].sum() == 0
 
 
+def test_a_pot_no_camera_saw_is_not_taken_for_a_pair_of_legs():
+    """A plant pot 30 cm across, seen by the LiDAR alone from one side (a C of cells about as long as two
+    legs side by side, wide at its tips and narrow between them) lies on one circle, so it stays; a
+    person standing beside it still goes."""
+    world = World().room(-4, -4, 4, 4)
+    world.leg((0.0, 0.0), 0.15, 2, SEMI)
+    _person(world, (-2.2, 1.8))
+    poses = []
+    for a in np.linspace(0.0, 2.0, 12):  # a third of the way round the pot
+        x, y = 1.2 * math.cos(a), 1.2 * math.sin(a)
+        poses.append((x, y, math.atan2(-y, -x)))
+    poses += orbit((-2.2, 1.8), 1.0, 16)
+    lay = fuse(world, poses, camera=False, noise=0.003, rng=np.random.default_rng(11)).layers()
+    cm = clean(lay, CleaningConfig(), NAMES)
+    pot = around(lay.spec, (0.0, 0.0), 0.22)
+    assert (pot & (lay.hits > 0)).sum() > 15
+    assert cm.occupied[pot].sum() >= 0.8 * (pot & (cm.occupied | cm.dynamic_removed)).sum()
+    assert cm.occupied[around(lay.spec, (-2.2, 1.8), 0.3)].sum() == 0
+
+
 def test_a_person_the_camera_often_saw_through_a_beds_mask_leaves_whole():
     """Someone standing all tour behind a bed's foot: from one side the camera labels their legs
     "bed" (the frame covers them in the image), from the other "person". Summed, a third of the labels

@@ -357,6 +357,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if not alone(xy[b], (b,)):
             continue
         pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
+        if _one_ring(pts, res):  # a pot, a bin, a round post: one circle, where two legs are two
+            continue
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         if w[b] <= hi:
             # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
@@ -366,6 +368,20 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if lo + res <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
             person[b] = True
     return person[lab]
+
+
+def _one_ring(pts: NDArray[np.float64], res: float) -> bool:
+    """Whether points (cell centres, m) lie on one circle to within a cell's rounding: two arcs of a
+    pot, a bin or a round post seen from two sides, not two legs (each a ring of its own)."""
+    if pts.shape[0] < 6:
+        return False
+    c = pts - pts.mean(axis=0)
+    # algebraic circle fit: x^2 + y^2 = 2 a x + 2 b y + k
+    A = np.column_stack([2 * c, np.ones(len(c))])
+    (a, b, k), *_ = np.linalg.lstsq(A, (c * c).sum(axis=1), rcond=None)
+    r = math.sqrt(max(k + a * a + b * b, 0.0))
+    resid = np.hypot(c[:, 0] - a, c[:, 1] - b) - r
+    return bool(np.sqrt(np.mean(resid * resid)) <= 0.65 * res)
 
 
 def _two_lobes(pts: NDArray[np.float64], res: float, min_width: float) -> bool:

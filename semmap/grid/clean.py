@@ -357,12 +357,12 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if not alone(xy[b], (b,)):
             continue
         pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
-        if _one_ring(pts, res):  # a pot, a bin, a round post: one circle, where two legs are two
-            continue
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         if w[b] <= hi:
             # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
             person[b] = min(bw, bh) >= lo and _two_lobes(pts, res, lo)
+            continue
+        if _one_ring(pts, res):  # a pot, a bin, a round post: one circle, where two legs are two
             continue
         # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round
         if lo + res <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):

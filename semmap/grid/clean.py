@@ -21,9 +21,12 @@ The camera sees ~56° ahead while the LiDAR sees 270°, so most returns carry no
 4. **People, whole.** A person is one object: occupied cells within ``person_radius`` of a
    dynamic cell leave with it (the leg arcs seen only where the camera did not look), and so
    does a blob of touching cells up to ``person_max_size`` that holds dynamic evidence, unless
-   they are wall or their own labels say otherwise (a counter the person stood at stays).
+   they are wall or their own labels say otherwise (a counter the person stood at stays); a
+   person-sized blob whose labels, summed, say dynamic leaves whole, cells labelled as furniture
+   included (someone the camera also saw through a bed's mask).
    People no camera saw are found by their legs: two isolated blobs a leg wide
-   (``person_leg_width``), ``person_leg_spacing`` apart, or one such blob two legs long; walls
+   (``person_leg_width``), ``person_leg_spacing`` apart, or one such blob two legs long (or, feet
+   together, one leg wide) with a waist between the legs, not lying on one circle (a pot); walls
    and large furniture may be near, other small blobs (a chair's other legs) may not. Unlabelled
    cells off the walls that scans saw free ``transient_ratio`` times as often as they hit them
    are someone who paused there, kept by the log-odds only because their hits came last.

@@ -88,14 +88,20 @@ def _running(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Run:
     """`semmap build` in its own session, watched from outside."""
 
     def __init__(self, args: list[str], cwd: Path) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        # as from a terminal: a test runner started in the background by a non-interactive shell
+        # inherits SIGINT ignored, and so would the build, which would then rightly ignore Ctrl-C
         self.proc = subprocess.Popen([sys.executable, "-m", "semmap", *args], cwd=cwd, env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     start_new_session=True)
+                                     start_new_session=True, preexec_fn=_default_sigint)
         self.seen: dict[int, str] = {}
         self.shm: set[str] = set()
 

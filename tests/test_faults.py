@@ -228,9 +228,10 @@ def test_a_bug_in_a_worker_is_reported_as_a_bug_with_its_traceback():
     mapper = MapperWorkers(RegistrationConfig(mode="odometry"), GridConfig(), ())
     try:
         mapper.wait_ready()
-        for _ in range(20):
-            mapper.push(object(), np.zeros(3))  # not a painted scan: the registrar fails on it
+        # the failure surfaces at the next push or at finish, whichever comes after the worker's report
         with pytest.raises(InternalError, match="in the registration worker: AttributeError") as info:
+            for _ in range(20):
+                mapper.push(object(), np.zeros(3))  # not a painted scan: the registrar fails on it
             mapper.finish()
         assert "registrar.py" in str(info.value.__cause__)  # the worker's own traceback travels with it
     finally:

@@ -494,10 +494,11 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
         semi_share = np.where(lab > 0, s_semi / lab, 0.0)
 
     # walls and furniture faces: straight runs, each direction's segments judged as a whole
+    # per cell, its most-hit movable class (-1: none) and each class's typical size (last entry: none)
+    best, sizes = _best_semi_class(layers, names), _class_sizes(layers, names)
     longest = None
     if cfg.face_size_factor > 0 and layers.class_ids:
-        best = _best_semi_class(layers, names)
-        longest = np.where(best >= 0, cfg.face_size_factor * _class_sizes(layers, names)[best], 0.0).astype(np.float32)
+        longest = np.where(best >= 0, cfg.face_size_factor * sizes[best], 0.0).astype(np.float32)
     runs = _runs(occ, cfg, res, s_dyn, s_semi, lab, longest)
 
     # everything else decides by its own evidence when it has enough labels
@@ -592,8 +593,6 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     # static-labelled cell, and no farther than label_spread_distance, or for large furniture
     # 0.9 x its class's typical size (config/classes.yaml, sizes:)
     if semi.any() and undecided.any():
-        sizes = _class_sizes(layers, names)
-        best = _best_semi_class(layers, names)
         d_semi, near_cls = nearest_value(semi, best)
         reach = np.maximum(cfg.label_spread_distance, 0.9 * sizes[near_cls]) / res  # -1: the last entry
         # cells touching a wall belong to it unless a semi-static cell is nearer; a blob standing

@@ -35,7 +35,7 @@ same mask lie nearer the camera and cover it:
    of it by at least ``line_depth_margin`` (less than the depth margin: a bed pushed against
    a wall), on the same connected region of the mask.
 5. **Deeper than the object.** An object of a class with a typical size (``sizes:`` in the
-   class table) spans at most ``object_extent`` times that size. ``p`` is hidden when a
+   class table) spans at most ``paint.occlusion_object_extent`` times that size. ``p`` is hidden when a
    nearer point ``q`` of the same connected region of the mask lies farther from ``p`` than
    that span, and no farther than it to the side of ``p``'s ray: ``p`` cannot be the object
    ``q`` is on, and that object stands in front of ``p``. This is the wall or cabinet seen

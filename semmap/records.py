@@ -28,6 +28,12 @@ __all__ = [
 ]
 
 
+#: ``PaintedScan.instance`` values from here on name a connected region of a class's mask, below it
+#: an instance the segmentation backend told apart: a region can join objects, not tell them apart
+#: (two legs of one table are two regions when the table top is out of the image)
+REGION_BASE = 1 << 16
+
+
 class Mobility(IntEnum):
     """How a class moves. The value is what label and mobility arrays store."""
 
@@ -268,12 +274,16 @@ class Segmentation:
 
     ``label`` is ``uint16`` (H, W): value k > 0 is ``names[k-1]``, 0 is no object.
     ``confidence`` is ``float32`` (H, W) in [0, 1] where the backend has one.
+    ``instance`` is ``uint16`` (H, W) where the backend tells objects apart (YOLO-seg): value i > 0
+    is the image's i-th object, 0 is no object. Without it, the connected regions of each class's
+    mask stand in for the objects.
     """
 
     stamp_ns: int
     label: NDArray[np.uint16]
     names: tuple[str, ...]
     confidence: NDArray[np.float32] | None = None
+    instance: NDArray[np.uint16] | None = None
 
     def __post_init__(self) -> None:
         lab = np.asarray(self.label)
@@ -290,6 +300,12 @@ class Segmentation:
                 raise ValueError(f"confidence shape {c.shape} differs from label shape {lab.shape}")
             c.setflags(write=False)
             object.__setattr__(self, "confidence", c)
+        if self.instance is not None:
+            i = np.asarray(self.instance, dtype=np.uint16)
+            if i.shape != lab.shape:
+                raise ValueError(f"instance shape {i.shape} differs from label shape {lab.shape}")
+            i.setflags(write=False)
+            object.__setattr__(self, "instance", i)
 
 
 @dataclass(frozen=True)
@@ -304,6 +320,10 @@ class PaintedScan:
     * ``hit`` (N,): the beam returned a valid range (finite, within range limits).
     * ``mobility`` (N,): :class:`Mobility` values; 0 where the camera did not see the point.
     * ``class_id`` (N,): index into ``class_names``, -1 for no object / unseen.
+    * ``instance`` (N,): the object the camera saw the point on, a number unique within the scan,
+      -1 for none: the backend's instance (below ``REGION_BASE``), or else the connected region of
+      the point's class's mask (``REGION_BASE`` and above); given for semi-static points only
+      (None: all -1).
     * ``stamp_ns``: the time the points are expressed at (the scan's reference time).
     """
 
@@ -315,6 +335,7 @@ class PaintedScan:
     class_id: NDArray[np.int16]
     class_names: tuple[str, ...] = ()
     frame_id: str = ""
+    instance: NDArray[np.int32] | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2)
@@ -322,10 +343,11 @@ class PaintedScan:
         hit = np.asarray(self.hit, dtype=bool).reshape(-1)
         mob = np.asarray(self.mobility, dtype=np.uint8).reshape(-1)
         cls = np.asarray(self.class_id, dtype=np.int16).reshape(-1)
-        if not (hit.size == mob.size == cls.size == n):
-            raise ValueError("points, hit, mobility and class_id must have one entry per beam")
+        inst = np.full(n, -1, np.int32) if self.instance is None else np.asarray(self.instance, np.int32).reshape(-1)
+        if not (hit.size == mob.size == cls.size == inst.size == n):
+            raise ValueError("points, hit, mobility, class_id and instance must have one entry per beam")
         for name, arr in (("origin", np.asarray(self.origin, dtype=np.float64).reshape(2)), ("points", pts),
-                          ("hit", hit), ("mobility", mob), ("class_id", cls)):
+                          ("hit", hit), ("mobility", mob), ("class_id", cls), ("instance", inst)):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "class_names", tuple(self.class_names))

@@ -10,7 +10,7 @@ from semmap.config import PaintConfig, SimCameraConfig, SimLidarConfig, SyncConf
 from semmap.geometry import se3_from_xyz_rpy, se3_inverse
 from semmap.paint.motion import OdomTrack
 from semmap.paint.painter import Painter
-from semmap.records import Calibration, CameraIntrinsics, Mobility, Scan, Segmentation
+from semmap.records import REGION_BASE, Calibration, CameraIntrinsics, Mobility, Scan, Segmentation
 from semmap.sim.raycast import PartSet
 from semmap.sim.sensors import CameraSim, LidarSim
 from semmap.sim.world import Person, chair, wall
@@ -194,3 +194,36 @@ def test_fisheye_camera_paints_like_opencv_projects():
     uv, _ = cv2.fisheye.projectPoints(p_cam[seen].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, d)
     expected = np.clip(np.rint(uv.reshape(-1, 2)[:, 0]).astype(int), 0, 639) // 10
     assert np.array_equal(painted.class_id[seen], expected)
+
+
+def _two_chairs():
+    objs = [wall(1, 6.0, -6.0, 6.0, 6.0), wall(2, -6.0, 6.0, 6.0, 6.0), wall(3, -6.0, -6.0, 6.0, -6.0),
+            chair(4, (3.5, -1.0, 0.0)), chair(5, (3.5, 1.0, 0.0))]
+    parts = [p for o in objs for p in o.parts]
+    owners = [i for i, o in enumerate(objs) for _ in o.parts]
+    labels = np.array([0, 0, 0, COCO.index("chair") + 1, COCO.index("chair") + 1], np.uint16)
+    return PartSet.build(parts, owners), labels
+
+
+def test_furniture_points_name_the_object_the_camera_saw_them_on():
+    """Two chairs of one class: without instance masks, each chair's points share the number of its mask
+    region, and the two differ; with the backend's instance image, the points take its instances."""
+    ps, labels = _two_chairs()
+    lcfg, ccfg, t_base_lidar, calib = _rig()
+    lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))
+    sweep = lidar.cast(np.zeros(3), ps)
+    frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
+    scan = _scan(lidar, sweep.ranges, 0, lcfg)
+    owner = np.where(sweep.part >= 0, sweep.parts.owner[np.maximum(sweep.part, 0)], -1)
+    a, b = owner == 3, owner == 4
+    assert a.sum() >= 2 and b.sum() >= 2
+
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO))
+    ka, kb = np.unique(painted.instance[a]), np.unique(painted.instance[b])
+    assert ka.size == 1 and kb.size == 1 and ka[0] != kb[0]
+    assert min(ka[0], kb[0]) >= REGION_BASE  # regions: they may join objects, never tell them apart
+    assert np.all(painted.instance[~(a | b)] == -1)  # walls are not furniture
+
+    instance = np.where(frame.label > 0, frame.owner + 1, 0).astype(np.uint16)
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO, instance=instance))
+    assert set(painted.instance[a]) == {4} and set(painted.instance[b]) == {5}

@@ -28,8 +28,9 @@ class _Counting:
 
     def segment(self, image):
         type(self).calls += 1
-        return Segmentation(image.stamp_ns, (image.data[:, :, 0] > 128).astype(np.uint16), self.names,
-                            np.full(image.data.shape[:2], self.cfg.conf, np.float32))
+        on = (image.data[:, :, 0] > 128).astype(np.uint16)
+        return Segmentation(image.stamp_ns, on, self.names, np.full(image.data.shape[:2], self.cfg.conf, np.float32),
+                            instance=on * 7)
 
     def close(self):
         pass
@@ -64,6 +65,7 @@ def test_mask_cache_serves_a_second_run_without_segmenting(tmp_path, counting_ba
     for a, b in zip(first, again):
         assert np.array_equal(a.label, b.label) and a.label.dtype == b.label.dtype == np.uint16
         assert np.array_equal(a.confidence, b.confidence)
+        assert np.array_equal(a.instance, b.instance) and a.instance.max() == 7  # objects stay told apart
     # the same stamp with other pixels is segmented again, not served stale
     seg.segment(_img(2, value=90))
     assert counting_backend.calls == 4

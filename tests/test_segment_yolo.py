@@ -64,7 +64,7 @@ def test_mask_of_an_instance_is_its_box_in_image_pixels():
     original image (letterbox undone: 64x32 image in a 64x64 input, 16 px pad on top)."""
     out0 = np.stack([_candidate(20, 32, 16, 8, 0, 0.9, (1, 0))], axis=1)[None]
     _, lb = letterbox(np.zeros((32, 64, 3), np.uint8), (64, 64))
-    label, conf, _ = yolo_seg_postprocess(out0, _protos(), lb, NC)
+    label, conf, _, _ = yolo_seg_postprocess(out0, _protos(), lb, NC)
     assert label.shape == (32, 64) and label.dtype == np.uint16
     rows, cols = np.nonzero(label)
     assert (rows.min(), rows.max(), cols.min(), cols.max()) == (12, 19, 12, 27)
@@ -77,7 +77,7 @@ def test_mask_follows_the_prototypes_inside_the_box():
     up to the image column where the bilinear mask crosses 0.5 (x = 32 px)."""
     out0 = np.stack([_candidate(28, 32, 32, 8, 1, 0.8, (1, 0))], axis=1)[None]  # x 12..44
     _, lb = letterbox(np.zeros((32, 64, 3), np.uint8), (64, 64))
-    label, _, _ = yolo_seg_postprocess(out0, _protos(left_only=True), lb, NC)
+    label, _, _, _ = yolo_seg_postprocess(out0, _protos(left_only=True), lb, NC)
     cols = np.nonzero(label.any(0))[0]
     assert (cols.min(), cols.max()) == (12, 31)
     assert set(np.unique(label)) == {0, 2}  # chair = names[1] → label 2
@@ -87,16 +87,29 @@ def test_overlapping_instances_the_better_score_wins():
     out0 = np.stack([_candidate(20, 32, 16, 8, 0, 0.6, (1, 0)),
                      _candidate(30, 32, 16, 8, 1, 0.9, (1, 0))], axis=1)[None]
     _, lb = letterbox(np.zeros((32, 64, 3), np.uint8), (64, 64))
-    label, _, _ = yolo_seg_postprocess(out0, _protos(), lb, NC, iou=0.99)
+    label, _, _, _ = yolo_seg_postprocess(out0, _protos(), lb, NC, iou=0.99)
     assert label[15, 25] == 2  # the overlap belongs to the chair (0.9)
     assert label[15, 14] == 1
+
+
+def test_two_touching_objects_of_one_class_are_two_instances():
+    """Two chairs whose masks touch: one connected region of the chair label, two instances, split where
+    the better-scoring one takes over."""
+    out0 = np.stack([_candidate(20, 32, 16, 8, 1, 0.6, (1, 0)),
+                     _candidate(34, 32, 16, 8, 1, 0.9, (1, 0))], axis=1)[None]  # x 12..28 and 26..42
+    _, lb = letterbox(np.zeros((32, 64, 3), np.uint8), (64, 64))
+    label, _, instance, det = yolo_seg_postprocess(out0, _protos(), lb, NC, iou=0.99)
+    assert len(det) == 2 and set(np.unique(label)) == {0, 2}
+    assert instance.dtype == np.uint16 and np.array_equal(instance > 0, label > 0)
+    better = int(np.argmax(det.scores)) + 1
+    assert instance[15, 14] == 3 - better and instance[15, 27] == better and instance[15, 40] == better
 
 
 def test_end_to_end_layout_needs_no_nms():
     """YOLO26's end2end export: [1, N, 6 + nm] rows of x1 y1 x2 y2 score class coefficients."""
     rows = np.array([[12, 28, 28, 36, 0.9, 1, 1, 0], [0, 0, 4, 4, 0.1, 0, 1, 0]], np.float32)[None]
     _, lb = letterbox(np.zeros((32, 64, 3), np.uint8), (64, 64))
-    label, _, det = yolo_seg_postprocess(rows, _protos(), lb, NC)
+    label, _, _, det = yolo_seg_postprocess(rows, _protos(), lb, NC)
     assert len(det) == 1 and np.count_nonzero(label == 2) == 16 * 8
 
 

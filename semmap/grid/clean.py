@@ -42,8 +42,10 @@ The camera sees ~56° ahead while the LiDAR sees 270°, so most returns carry no
    (``leg_max_size`` > 0) restores that rule for those who want it.
 7. **Output.** Dynamic cells are dropped from ``occupied`` and become free (the floor a person
    stood on); semi-static cells stay occupied and are flagged; flagged cells are grouped into
-   :class:`SemiStaticObject` records per class, by proximity and typical size (a table's four
-   legs are one table, a row of chairs several chairs), each with how many painted scans saw it.
+   :class:`SemiStaticObject` records per class: parts the camera saw as one object (the grid's
+   sightings) join, else parts within the class's typical size, and no object grows longer than
+   its class can be (a table's four legs are one table, a row of chairs several chairs); each
+   records how many painted scans saw it.
 
 What it cannot do: a person who never moved, whom no camera saw, and whose legs touch a wall
 or furniture, or who stands with feet together, looks like any other small obstacle and
@@ -63,7 +65,7 @@ from numpy.typing import NDArray
 
 from ..classes import ClassTable
 from ..config import CleaningConfig
-from ..records import GridSpec, Mobility
+from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
 __all__ = ["CleanedMap", "SemiStaticObject", "clean", "group_cells", "nearest_value"]
@@ -470,7 +472,19 @@ def _crop(layers: GridLayers, r0: int, r1: int, c0: int, c1: int) -> GridLayers:
     win = (slice(r0, r1), slice(c0, c1))
     return GridLayers(spec, layers.log_odds[win], layers.hits[win], layers.free[win],
                       layers.mobility[(slice(None), *win)], layers.class_counts[(slice(None), *win)],
-                      layers.class_ids, layers.class_names, layers.n_scans)
+                      layers.class_ids, layers.class_names, layers.n_scans,
+                      crop_sightings(layers.sightings, r0, r1, c0, c1))
+
+
+def crop_sightings(sightings: NDArray[np.int32], r0: int, r1: int, c0: int, c1: int) -> NDArray[np.int32]:
+    """The sightings (``GridLayers.sightings``) inside rows ``r0:r1`` and columns ``c0:c1``, in the
+    cropped grid's cells."""
+    r, c = sightings[:, 2], sightings[:, 3]
+    out = sightings[(r >= r0) & (r < r1) & (c >= c0) & (c < c1)].copy()
+    out[:, 2] -= r0
+    out[:, 3] -= c0
+    out.setflags(write=False)
+    return out
 
 
 def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> CleanedMap:
@@ -657,7 +671,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     for k in np.unique(cls[semi]):
         mask = semi & (cls == k)
         size = float(sizes[k])
-        n, lab = group_cells(mask, max(link_cells, 0.9 * size / res))
+        n, lab = _join_parts(mask, layers.sightings, link_cells, size / res)
         rows, cols = np.nonzero(lab)
         ids = lab[rows, cols]
         order = np.argsort(ids, kind="stable")
@@ -673,6 +687,118 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
                 out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
     out.sort(key=lambda o: (o.centroid[1], o.centroid[0]))
     return out
+
+
+#: two parts of one class are one object when, of the scans that saw both on objects, at least this
+#: share saw them on one object (one instance mask, or one connected region of their class's mask)
+_TOGETHER = 0.5
+#: ... and two parts are two objects, however near, when at most this share did (over 3 scans or more)
+_APART = 0.2
+
+
+def _join_parts(mask: NDArray[np.bool_], sightings: NDArray[np.int32], link_cells: float,
+                size_cells: float) -> tuple[int, NDArray[np.int32]]:
+    """Group the cells of one class into objects: (number of objects, labels as :func:`group_cells`).
+
+    Cells ``link_cells`` apart form parts (a leg, a face). Two parts are one object when the
+    camera saw them as one (``sightings``: over the scans that saw both, a share of at least
+    ``_TOGETHER`` saw them on one object) and they lie within ``_SPLIT_LENGTH`` object sizes;
+    failing camera evidence, when they lie within 0.9 object sizes (a table's legs span its top),
+    unless the camera saw them apart (``_APART``; only a backend's instances tell objects apart, see
+    ``REGION_BASE``). Pairs join best evidence first, and never into an object longer than its
+    class can be (``_PROXIMITY_LENGTH`` sizes joined by proximity, ``_SPLIT_LENGTH`` seen as one).
+    """
+    n, lab = group_cells(mask, link_cells)
+    if n < 2:
+        return n, lab
+    from scipy.sparse import coo_matrix
+    from scipy.spatial import cKDTree
+
+    rows, cols = np.nonzero(lab)
+    part = lab[rows, cols] - 1
+    pts = np.column_stack([rows, cols]).astype(np.float64)
+    # part pairs within 1.5 sizes, with their least cell distance
+    far = _SPLIT_LENGTH * size_cells
+    tree = cKDTree(pts)
+    pairs = tree.query_pairs(far, output_type="ndarray")
+    a, b = part[pairs[:, 0]], part[pairs[:, 1]]
+    keep = a != b
+    if not keep.any():
+        return n, lab
+    a, b = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
+    d = np.hypot(*(pts[pairs[keep, 0]] - pts[pairs[keep, 1]]).T)
+    key = a.astype(np.int64) * n + b
+    order = np.lexsort((d, key))
+    first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
+    key, d = key[order][first], d[order][first]
+    pa, pb = key // n, key % n
+    # scans that saw both parts, and scans that saw them on one object
+    together = both = together_told = both_told = np.zeros(key.size)
+    if sightings.shape[0]:
+        h, w = lab.shape
+        sr, sc = sightings[:, 2], sightings[:, 3]
+        inside = (sr >= 0) & (sr < h) & (sc >= 0) & (sc < w)
+        sp = np.full(sightings.shape[0], -1, np.int64)
+        sp[inside] = lab[sr[inside], sc[inside]].astype(np.int64) - 1
+        on = sp >= 0
+        if on.any():
+            scan, inst, sp = sightings[on, 0].astype(np.int64), sightings[on, 1].astype(np.int64), sp[on]
+            both = _co_seen(scan, sp, n, pa, pb, coo_matrix)
+            _, view = np.unique(np.column_stack([scan, inst]), axis=0, return_inverse=True)
+            view = view.reshape(-1)
+            together = np.minimum(_co_seen(view, sp, n, pa, pb, coo_matrix), both)
+            told = inst < REGION_BASE  # the backend's instances: they also tell objects apart
+            if told.any():
+                both_told = _co_seen(scan[told], sp[told], n, pa, pb, coo_matrix)
+                together_told = np.minimum(_co_seen(view[told], sp[told], n, pa, pb, coo_matrix), both_told)
+    same = (together >= 2) & (together >= _TOGETHER * both) & (d <= far)
+    apart = (both_told >= 3) & (together_told <= _APART * both_told)
+    near = (d <= 0.9 * size_cells) & ~apart
+    # join the best-evidenced pairs first (seen as one, by share; then the nearest), while the object
+    # stays no longer than one of its class can be (a row of desks the camera saw as one region is
+    # several desks)
+    cand = np.flatnonzero(same | near)
+    share = np.where(same, together / np.maximum(both, 1), 0.0)
+    cand = cand[np.lexsort((d[cand], -share[cand]))]
+    parent = np.arange(n)
+    members: dict[int, NDArray[np.intp]] = {}
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    by_part = np.argsort(part, kind="stable")
+    bounds = np.searchsorted(part[by_part], np.arange(n + 1))
+    for i in range(n):
+        members[i] = by_part[bounds[i]:bounds[i + 1]]
+    for j in cand:
+        ra, rb = root(int(pa[j])), root(int(pb[j]))
+        if ra == rb:
+            continue
+        cells = np.concatenate([members[ra], members[rb]])
+        if _length(pts[cells]) > (far if same[j] else _PROXIMITY_LENGTH * size_cells):
+            continue
+        parent[rb] = ra
+        members[ra] = cells
+        del members[rb]
+    roots = np.array([root(i) for i in range(n)])
+    _, obj = np.unique(roots, return_inverse=True)
+    m = int(obj.max()) + 1
+    out = np.zeros_like(lab)
+    out[rows, cols] = obj[part] + 1
+    return m, out
+
+
+def _co_seen(group: NDArray[np.int64], part: NDArray[np.int64], n: int, pa: NDArray[np.int64],
+             pb: NDArray[np.int64], coo_matrix: type) -> NDArray[np.float64]:
+    """For each part pair (pa, pb): how many of the groups (scans, or objects in a scan) hold both."""
+    g = np.unique(group * n + part)
+    gi, p = g // n, g % n
+    inc = coo_matrix((np.ones(g.size), (gi, p)), shape=(int(gi.max()) + 1, n)).tocsc()
+    co = (inc.T @ inc).tocsr()
+    return np.asarray(co[pa, pb]).reshape(-1)
 
 
 def _attach_unseen(groups: list[NDArray[np.intp]], rows: NDArray[np.intp], cols: NDArray[np.intp],
@@ -696,16 +822,32 @@ def _attach_unseen(groups: list[NDArray[np.intp]], rows: NDArray[np.intp], cols:
     return out
 
 
+#: parts joined by proximity alone make an object at most this many times its class's typical size
+#: long; parts the camera saw as one, at most _SPLIT_LENGTH times (a long table, a counter); longer
+#: runs are cut (a row of chairs)
+_PROXIMITY_LENGTH = 1.3
+_SPLIT_LENGTH = 1.5
+
+
+def _length(pts: NDArray[np.float64]) -> float:
+    """How far ``pts`` (K, 2) span along their principal axis."""
+    if pts.shape[0] < 2:
+        return 0.0
+    c = pts - pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    return float(np.ptp(c @ vt[0]))
+
+
 def _split(pts: NDArray[np.float64], size: float) -> list[NDArray[np.intp]]:
     """Indices of ``pts`` cut into pieces about ``size`` long along their principal axis (one piece
-    when they span less than 1.3 sizes)."""
+    when they span less than ``_SPLIT_LENGTH`` sizes)."""
     if pts.shape[0] < 2:
         return [np.arange(pts.shape[0])]
     c = pts - pts.mean(axis=0)
     _, _, vt = np.linalg.svd(c, full_matrices=False)
     t = c @ vt[0]
     length = float(np.ptp(t))
-    if length <= 1.3 * size:
+    if length <= _SPLIT_LENGTH * size:
         return [np.arange(pts.shape[0])]
     k = max(round(length / size), 2)
     edges = t.min() + length * np.arange(1, k) / k

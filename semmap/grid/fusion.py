@@ -37,7 +37,7 @@ import logging
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -81,6 +81,9 @@ class GridLayers:
     * ``class_ids`` (K,): index into ``class_names`` of each layer of ``class_counts``.
     * ``class_names``: the grid's class list, which ``PaintedScan.class_id`` indexes.
     * ``n_scans``: scans integrated.
+    * ``sightings`` (M, 4) int32: ``scan, instance, row, column``: the cells the returns of one
+      scan that the camera saw on one object (``PaintedScan.instance``) ended in. Cells that are
+      sighted together as one object belong to one object; the object list uses them.
     """
 
     spec: GridSpec
@@ -92,9 +95,12 @@ class GridLayers:
     class_ids: tuple[int, ...]
     class_names: tuple[str, ...]
     n_scans: int = 0
+    sightings: NDArray[np.int32] = field(default_factory=lambda: _frozen(np.zeros((0, 4), np.int32)))
 
     def __post_init__(self) -> None:
         shape = self.spec.shape
+        if self.sightings.ndim != 2 or self.sightings.shape[1] != 4:
+            raise ValueError(f"sightings must have shape (M, 4), got {self.sightings.shape}")
         if self.log_odds.shape != shape or self.hits.shape != shape or self.free.shape != shape:
             raise ValueError(f"layers must have the grid's shape {shape}")
         if self.mobility.shape != (N_MOBILITY, *shape):
@@ -127,7 +133,7 @@ class GridLayers:
     @property
     def nbytes(self) -> int:
         return int(self.log_odds.nbytes + self.hits.nbytes + self.free.nbytes + self.mobility.nbytes
-                   + self.class_counts.nbytes)
+                   + self.class_counts.nbytes + self.sightings.nbytes)
 
 
 class SemanticGrid:
@@ -167,6 +173,10 @@ class SemanticGrid:
         self._layer_of = np.full(len(self.class_names), -1, np.intp)
         self.n_scans = 0
         self.n_reallocations = 0
+        # (scan, instance, row, column) of each cell a return painted on an object ended in; row and
+        # column counted from the map origin in cells, so the window may grow meanwhile
+        self._sightings: list[NDArray[np.int32]] = []
+        self._sightings_n = 0
         # per-scan scratch rasters, kept between scans (fresh pages for each scan cost page faults)
         self._scratch: list[NDArray[Any]] = [np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, np.uint16)]
 
@@ -182,7 +192,8 @@ class SemanticGrid:
     @property
     def nbytes(self) -> int:
         """Memory held by the grid's layers."""
-        return int(self._lo.nbytes + self._hits.nbytes + self._free.nbytes + self._mob.nbytes + self._cls.nbytes)
+        return int(self._lo.nbytes + self._hits.nbytes + self._free.nbytes + self._mob.nbytes + self._cls.nbytes
+                   + 16 * self._sightings_n)
 
     def _ensure(self, x0: float, y0: float, x1: float, y1: float) -> None:
         """Grow the window so it covers the box [x0, x1] x [y0, y1] (metres, map frame)."""
@@ -325,6 +336,13 @@ class SemanticGrid:
         # hit cells (clipped: a float can round onto the window's far edge)
         hc = np.minimum(np.maximum(((hx - gx) / res).astype(np.intp), c0), c1 - 1)
         hr = np.minimum(np.maximum(((hy - gy) / res).astype(np.intp), r0), r1 - 1)
+        inst = scan.instance[hit]
+        on = inst >= 0
+        if on.any():  # which cells the camera saw as one object in this scan (the object list's evidence)
+            row = np.column_stack([np.full(int(on.sum()), self.n_scans, np.int64), inst[on],
+                                   hr[on] + round(gy / res), hc[on] + round(gx / res)])
+            self._sightings.append(np.unique(row, axis=0).astype(np.int32))
+            self._sightings_n += self._sightings[-1].shape[0]
 
         # free space: the scan polygon, minus the cells returns of this scan ended in
         scratch = self._raster(0, r1 - r0, c1 - c0)
@@ -401,7 +419,18 @@ class SemanticGrid:
             class_ids=tuple(self._cls_ids),
             class_names=self.class_names,
             n_scans=self.n_scans,
+            sightings=_frozen(self._window_sightings()),
         )
+
+    def _window_sightings(self) -> NDArray[np.int32]:
+        if not self._sightings:
+            return np.zeros((0, 4), np.int32)
+        if len(self._sightings) > 1:  # one array from now on
+            self._sightings = [np.concatenate(self._sightings)]
+        out = self._sightings[0].copy()
+        out[:, 2] -= round(self._oy / self.res)
+        out[:, 3] -= round(self._ox / self.res)
+        return out
 
 
 def _bump(flat: NDArray[np.uint16], idx: NDArray[np.intp]) -> None:

@@ -5,7 +5,8 @@
       semantic.png                the map coloured by mobility and class, with legend and scale bar
       semi_static.yaml + .pgm     the cells flagged movable (occupied = semi-static)
       semi_static_objects.json    movable objects: class, centroid, extent, cells
-      grid.npz                    full fidelity: log-odds, hit/free counts, mobility and class counts
+      grid.npz                    full fidelity: log-odds, hit/free counts, mobility and class counts,
+                                  the sightings of objects the object list was grouped by
       trajectory.tum              base_link poses in the map frame, one per scan
       odometry.tum                the wheel odometry at the same stamps (odom frame)
       config.yaml                 the effective configuration
@@ -45,6 +46,8 @@ MAP_FOLDER_VERSION = 1
 
 def _crop_to_observed(layers: GridLayers, cleaned: CleanedMap, margin_m: float) -> tuple[GridLayers, CleanedMap]:
     """Cut the grid down to the observed cells plus a margin (the fusion window grows in big steps)."""
+    from ..grid.clean import crop_sightings
+
     rows, cols = np.nonzero(~cleaned.unknown)
     if rows.size == 0:
         return layers, cleaned
@@ -56,7 +59,8 @@ def _crop_to_observed(layers: GridLayers, cleaned: CleanedMap, margin_m: float) 
     win = (slice(r0, r1), slice(c0, c1))
     layers = replace(layers, spec=spec, log_odds=layers.log_odds[win], hits=layers.hits[win], free=layers.free[win],
                      mobility=layers.mobility[(slice(None), *win)],
-                     class_counts=layers.class_counts[(slice(None), *win)])
+                     class_counts=layers.class_counts[(slice(None), *win)],
+                     sightings=crop_sightings(layers.sightings, r0, r1, c0, c1))
     cleaned = replace(cleaned, spec=spec, occupied=cleaned.occupied[win], free=cleaned.free[win],
                       unknown=cleaned.unknown[win], semi_static=cleaned.semi_static[win],
                       dynamic_removed=cleaned.dynamic_removed[win])
@@ -94,6 +98,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
         mobility=layers.mobility,
         class_counts=layers.class_counts,
         class_ids=np.asarray(layers.class_ids, np.int32),
+        sightings=layers.sightings,
         class_names=np.asarray(pipe.class_names if pipe.class_names else ("",), dtype=str),
         occupied=cleaned.occupied,
         semi_static=cleaned.semi_static,

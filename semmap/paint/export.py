@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 ProgressFn = Callable[[int, int], None]
 
 #: the columns of the exported file, in order (see README, "semmap paint")
-EXPORT_COLUMNS = ("stamp_ns", "beam", "x", "y", "class_raw", "mobility_raw", "class", "mobility")
+EXPORT_COLUMNS = ("stamp_ns", "beam", "x", "y", "class_raw", "mobility_raw", "class", "mobility", "object")
 
 
 @dataclass(frozen=True)
@@ -168,6 +168,7 @@ def _beam_rows(pair: PaintedPair) -> dict[str, NDArray[Any]]:
         "mobility_raw": pair.raw.mobility,
         "class": pair.filtered.class_id,
         "mobility": pair.filtered.mobility,
+        "object": pair.filtered.instance,
     }
 
 
@@ -249,6 +250,6 @@ def _csv_chunk(rows: dict[str, NDArray[Any]], names: tuple[str, ...]) -> str:
     stamp = str(int(rows["stamp_ns"][0]))
     cols = [np.full(x.size, stamp, dtype=object), rows["beam"].astype(str), xs, ys,
             cls_names[rows["class_raw"]], _MOBILITY_NAMES[rows["mobility_raw"]],
-            cls_names[rows["class"]], _MOBILITY_NAMES[rows["mobility"]]]
+            cls_names[rows["class"]], _MOBILITY_NAMES[rows["mobility"]], rows["object"].astype(str)]
     lines = [",".join(map(str, r)) for r in zip(*cols)]
     return "\n".join(lines) + "\n"

@@ -70,7 +70,7 @@ from numpy.typing import NDArray
 
 from ..config import PaintConfig
 
-__all__ = ["OcclusionParams", "hidden_points"]
+__all__ = ["OcclusionParams", "hidden_points", "mask_regions"]
 
 
 @dataclass(frozen=True)
@@ -333,6 +333,17 @@ class _Components:
             self._regions[value] = regions
         return regions
 
+    def keys(self, idx: NDArray[np.intp]) -> NDArray[np.int32]:
+        """A number per point of ``idx`` naming its label's connected region: equal for two points
+        exactly when they lie on one region of one mask (-1 off the masks)."""
+        out = np.full(idx.size, -1, np.int32)
+        la = self.labels[idx]
+        for value in np.unique(la[la > 0]):
+            m = la == value
+            region = self._of(int(value)).at(self.row[idx[m]], self.col[idx[m]]).astype(np.int32)
+            out[m] = np.where(region > 0, (int(value) << 16) + region, -1)
+        return out
+
     def row_joined(self, a: NDArray[np.intp], b: NDArray[np.intp], min_share: float = 0.8) -> NDArray[np.bool_]:
         """Whether the mask covers ``min_share`` of a's pixel row between a's column and b's."""
         ca = self.col[a]
@@ -352,6 +363,18 @@ class _Components:
             m = la == value
             out[m] = self.joined(a[m], b[m])
         return out
+
+
+def mask_regions(label_image: NDArray[np.integer], uv: NDArray[np.integer], labels: NDArray[np.intp]
+                 ) -> NDArray[np.int32]:
+    """Which object each point's pixel lies on, when the segmentation does not tell objects apart:
+    its label's 8-connected mask region, as a number unique within the image (-1 off the masks).
+
+    ``uv`` (K, 2): whole pixels (column, row) inside the image; ``labels`` (K,): the label value
+    under each. The regions are kept while the same label image comes back (a camera frame is
+    painted with several scans), and shared with :func:`hidden_points`.
+    """
+    return _Components(label_image, uv, labels).keys(np.arange(labels.size))
 
 
 def _through_shadows(off: NDArray[np.bool_], xy: NDArray[np.float64], dist: NDArray[np.float64],

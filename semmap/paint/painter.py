@@ -39,7 +39,7 @@ from ..geometry import (
 )
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
-from .occlusion import OcclusionParams, hidden_points
+from .occlusion import OcclusionParams, hidden_points, mask_regions
 
 __all__ = ["Painter", "PaintStats", "CameraView"]
 
@@ -236,10 +236,11 @@ class Painter:
 
         mobility = np.zeros(n, np.uint8)
         class_id = np.full(n, -1, np.int16)
+        instance = np.full(n, -1, np.int32)
         self.last_view = None
         if seg is not None and self.calib is not None:
             footprint = np.abs(ranges * scan.angle_increment)
-            self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id)
+            self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id, instance)
         return PaintedScan(
             stamp_ns=t_ref,
             origin=origin,
@@ -247,6 +248,7 @@ class Painter:
             hit=hit,
             mobility=mobility,
             class_id=class_id,
+            instance=instance,
             class_names=self.class_names,
             frame_id=scan.frame_id,
         )
@@ -254,7 +256,7 @@ class Painter:
     def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_],
                       footprint: NDArray[np.float64], t_ref: int,
                       odom: OdomTrack | None, seg: Segmentation, mobility: NDArray[np.uint8],
-                      class_id: NDArray[np.int16]) -> None:
+                      class_id: NDArray[np.int16], instance: NDArray[np.int32]) -> None:
         assert self.calib is not None
         intr = self.calib.intrinsics
         if seg.label.shape != (intr.height, intr.width):
@@ -334,6 +336,16 @@ class Painter:
             self.stats.occlusion_max_per_scan = max(self.stats.occlusion_max_per_scan, n_hidden)
         mobility[idx] = mob
         class_id[idx] = cls
+        # the object each furniture point lies on, to tell objects apart in the map's object list
+        semi = np.flatnonzero(mob == Mobility.SEMI_STATIC)
+        if semi.size:
+            pix = px[seen][in_img][semi]
+            if seg.instance is not None:
+                key = seg.instance[pix[:, 1], pix[:, 0]].astype(np.int32)
+                key[key == 0] = -1
+            else:
+                key = mask_regions(seg.label, pix, labels[semi])
+            instance[idx[semi]] = key
         self.last_view = CameraView(seg.stamp_ns, idx, uv[ok], labels, hidden)
         self.stats.painted += 1
         self.stats.points_in_view += int(ok.sum())

@@ -4,7 +4,8 @@
 ``eval-seg``); :func:`~semmap.segment.base.create_segmenter` applies it. Layout::
 
     DIR/<model key>/model.json          what the key stands for (backend, weights digest, options)
-    DIR/<model key>/<stamp_ns>.npz      label (uint16), confidence (float32, if any), image digest
+    DIR/<model key>/<stamp_ns>.npz      label (uint16), confidence (float32) and instance (uint16)
+                                        images (if any), image digest
 
 The **model key** is a digest of the backend name, the SHA-256 of the weights file (or
 folder) and the options that change the result (thresholds, input size, prompts, memory
@@ -62,7 +63,8 @@ def _weights_digest(path: Path, cache_root: Path) -> str:
 
 def model_identity(cfg: SegmentationConfig, cache_root: Path | None = None) -> dict[str, Any]:
     """What a cached result depends on: backend, weights digest, result-changing options."""
-    ident: dict[str, Any] = {"backend": cfg.backend}
+    # entry format 2 keeps the instance image: results cached before it are segmented again
+    ident: dict[str, Any] = {"backend": cfg.backend, "entry_format": 2}
     weights = cfg.model
     if weights is None and cfg.backend == "mediapipe-selfie":
         from .selfie import default_selfie_model
@@ -144,12 +146,12 @@ class CachedSegmenter:
             with np.load(p, allow_pickle=False) as z:
                 if str(z["image_digest"]) != digest:
                     return None
-                label = z["label"]
                 conf = z["confidence"] if "confidence" in z.files else None
+                instance = z["instance"] if "instance" in z.files else None
+                return Segmentation(image.stamp_ns, z["label"], self.names, conf, instance)
         except (OSError, ValueError, KeyError) as exc:
             log.warning("%s: unreadable cache entry, segmenting again (%s)", p, exc)
             return None
-        return Segmentation(image.stamp_ns, label, self.names, conf)
 
     def segment(self, image: Image) -> Segmentation:
         digest = image_digest(image)
@@ -162,6 +164,8 @@ class CachedSegmenter:
         arrays: dict[str, Any] = {"label": seg.label, "image_digest": np.array(digest)}
         if seg.confidence is not None:
             arrays["confidence"] = seg.confidence
+        if seg.instance is not None:
+            arrays["instance"] = seg.instance
         fd, tmp = tempfile.mkstemp(dir=self.dir, prefix=".tmp-", suffix=".npz")
         with os.fdopen(fd, "wb") as fh:
             np.savez_compressed(fh, **arrays)

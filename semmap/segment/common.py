@@ -33,16 +33,21 @@ def rgb_array(image: Image, backend: str) -> NDArray[np.uint8]:
 
 def compose_instances(shape: tuple[int, int], masks: list[NDArray[np.bool_]] | NDArray[np.bool_],
                       labels: NDArray[np.integer], scores: NDArray[np.floating],
-                      offsets: list[tuple[int, int]] | None = None) -> tuple[NDArray[np.uint16], NDArray[np.float32]]:
+                      offsets: list[tuple[int, int]] | None = None
+                      ) -> tuple[NDArray[np.uint16], NDArray[np.float32], NDArray[np.uint16]]:
     """Paint instance masks into one label image, best score last (on top).
 
     ``labels[i]`` is the label value (class index + 1) of instance i; ``masks[i]`` its mask,
     either full-size or, with ``offsets[i] = (row, col)``, a box-sized patch placed there.
-    Returns the ``uint16`` label image and the ``float32`` confidence (the winning
-    instance's score; 0 where the label is 0).
+    Returns the ``uint16`` label image, the ``float32`` confidence (the winning
+    instance's score; 0 where the label is 0) and the ``uint16`` instance image (the winning
+    instance's number, from 1 in the order given; 0 where the label is 0).
     """
+    if len(masks) > np.iinfo(np.uint16).max:
+        raise ValueError(f"{len(masks)} instances: at most 65535 fit an instance image")
     label = np.zeros(shape, np.uint16)
     conf = np.zeros(shape, np.float32)
+    instance = np.zeros(shape, np.uint16)
     for i in np.argsort(np.asarray(scores), kind="stable"):
         m = masks[i]
         if offsets is None:
@@ -55,7 +60,8 @@ def compose_instances(shape: tuple[int, int], masks: list[NDArray[np.bool_]] | N
         sub_c = conf[r0:r0 + m.shape[0], c0:c0 + m.shape[1]]
         sub_l[m] = int(labels[i])
         sub_c[m] = float(scores[i])
-    return label, conf
+        instance[r0:r0 + m.shape[0], c0:c0 + m.shape[1]][m] = i + 1
+    return label, conf, instance
 
 
 def parse_names(raw: Any, source: str) -> tuple[str, ...]:

@@ -166,9 +166,9 @@ class OnnxSegmenter:
             x, lb = letterbox(rgb, self._input_size(h, w))
             out0, out1 = session.run(None, {self._input: x})[:2]
             nc = len(self.model_names)
-            label, conf, _ = yolo_seg_postprocess(out0, out1, lb, nc, self.cfg.conf, self.cfg.iou,
-                                                  self.cfg.mask_threshold, self.cfg.max_det)
-            return Segmentation(image.stamp_ns, label, self.names, conf)
+            label, conf, instance, _ = yolo_seg_postprocess(out0, out1, lb, nc, self.cfg.conf, self.cfg.iou,
+                                                            self.cfg.mask_threshold, self.cfg.max_det)
+            return Segmentation(image.stamp_ns, label, self.names, conf, instance)
         return self._semantic(image.stamp_ns, rgb, session)
 
     def _semantic(self, stamp: int, rgb: NDArray[np.uint8], session: Any) -> Segmentation:

@@ -77,8 +77,8 @@ class UltralyticsSegmenter:
                               for m in masks])
         cls = res.boxes.cls.cpu().numpy().astype(np.intp)
         scores = res.boxes.conf.cpu().numpy().astype(np.float32)
-        label, conf = compose_instances((h, w), masks, cls + 1, scores)
-        return Segmentation(image.stamp_ns, label, self.names, conf)
+        label, conf, instance = compose_instances((h, w), masks, cls + 1, scores)
+        return Segmentation(image.stamp_ns, label, self.names, conf, instance)
 
     def close(self) -> None:
         self._model = None

@@ -188,12 +188,13 @@ def instance_masks(det: Detections, protos: NDArray[np.floating], lb: Letterbox,
 
 def yolo_seg_postprocess(output0: NDArray[np.floating], protos: NDArray[np.floating], lb: Letterbox, nc: int,
                          conf: float = 0.25, iou: float = 0.7, mask_threshold: float = 0.5, max_det: int = 300
-                         ) -> tuple[NDArray[np.uint16], NDArray[np.float32], Detections]:
-    """Model outputs → the label image (value = class + 1), confidence, and the detections."""
+                         ) -> tuple[NDArray[np.uint16], NDArray[np.float32], NDArray[np.uint16], Detections]:
+    """Model outputs → the label image (value = class + 1), confidence, instance image (value =
+    detection + 1) and the detections."""
     from .common import compose_instances
 
     nm = int(np.shape(protos)[-3])
     det = decode_detections(output0, nc, nm, conf, iou, max_det)
     patches, offsets, _ = instance_masks(det, protos, lb, mask_threshold)
-    label, confidence = compose_instances(lb.image_hw, patches, det.classes + 1, det.scores, offsets)
-    return label, confidence, det
+    label, confidence, instance = compose_instances(lb.image_hw, patches, det.classes + 1, det.scores, offsets)
+    return label, confidence, instance, det

@@ -64,6 +64,8 @@ def _full_resolution_reference(seg, img):
     h, w = img.data.shape[:2]
     label = np.zeros((h, w), np.uint16)
     conf = np.zeros((h, w), np.float32)
+    instance = np.zeros((h, w), np.uint16)
+    seen = 0
     t = seg.cfg.mask_threshold
     with torch.inference_mode():
         for k, (_, mask, ids) in enumerate(seg._text, start=1):
@@ -81,7 +83,9 @@ def _full_resolution_reference(seg, img):
             upd = on.any(0).numpy() & (best > conf)
             label[upd] = k
             conf[upd] = best[upd]
-    return label, conf
+            instance[upd] = seen + 1 + first[upd]  # instances numbered across the prompts
+            seen += keep.numel()
+    return label, conf, instance
 
 
 @pytest.mark.parametrize("mask_threshold,max_det", [(0.5, 300), (0.4999, 3)])
@@ -92,10 +96,11 @@ def test_painting_at_mask_resolution_equals_upsampling_every_mask_first(tiny_sam
                                            mask_threshold=mask_threshold, max_det=max_det))
     img = _frame(3)
     res = seg.segment(img)
-    label, conf = _full_resolution_reference(seg, img)
+    label, conf, instance = _full_resolution_reference(seg, img)
     assert len(np.unique(label)) >= 3
     assert np.array_equal(res.label, label)
     assert np.array_equal(res.confidence, conf)
+    assert np.array_equal(res.instance, instance) and len(np.unique(instance)) > len(np.unique(label))
 
 
 def test_a_prompt_that_keeps_no_query_skips_the_mask_head(tiny_sam3):

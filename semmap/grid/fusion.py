@@ -339,10 +339,15 @@ class SemanticGrid:
         inst = scan.instance[hit]
         on = inst >= 0
         if on.any():  # which cells the camera saw as one object in this scan (the object list's evidence)
-            row = np.column_stack([np.full(int(on.sum()), self.n_scans, np.int64), inst[on],
-                                   hr[on] + round(gy / res), hc[on] + round(gx / res)])
-            self._sightings.append(np.unique(row, axis=0).astype(np.int32))
-            self._sightings_n += self._sightings[-1].shape[0]
+            key = np.unique((inst[on].astype(np.int64) << 32) | (hr[on] * W + hc[on]))
+            cell = key & 0xFFFFFFFF
+            row = np.empty((key.size, 4), np.int32)
+            row[:, 0] = self.n_scans
+            row[:, 1] = key >> 32
+            row[:, 2] = cell // W + round(gy / res)
+            row[:, 3] = cell % W + round(gx / res)
+            self._sightings.append(row)
+            self._sightings_n += key.size
 
         # free space: the scan polygon, minus the cells returns of this scan ended in
         scratch = self._raster(0, r1 - r0, c1 - c0)

@@ -281,7 +281,8 @@ class Sam3Segmenter:
 
     def _paint(self, masks: Any, scores: Any, keep: Any, k: int, canvas: list[Any]) -> None:
         """Paint one prompt's kept instances (label value k) at mask resolution, where they beat what
-        is there. ``canvas`` is [label, confidence] at mask resolution, made on first use."""
+        is there. ``canvas`` is [label, confidence, instance, instances so far] at mask resolution, made
+        on first use."""
         torch = self._torch
         if keep.numel() == 0:
             return
@@ -289,13 +290,18 @@ class Sam3Segmenter:
         thr = math.log(t / (1 - t)) if 0 < t < 1 else (-math.inf if t <= 0 else math.inf)  # logit space
         on = masks[0, keep] > thr
         # the best-scoring kept instance covering each pixel (the first of the queries sorted best first)
-        best = torch.where(on, scores[keep].view(-1, 1, 1), torch.zeros((), dtype=scores.dtype)).amax(0).cpu().numpy()
+        best_t, which = torch.where(on, scores[keep].view(-1, 1, 1), torch.zeros((), dtype=scores.dtype)).max(0)
+        best, which = best_t.cpu().numpy(), which.cpu().numpy()
         if not canvas:
-            canvas += [np.zeros(best.shape, np.uint16), np.zeros(best.shape, np.float32)]
-        label, conf = canvas
+            canvas += [np.zeros(best.shape, np.uint16), np.zeros(best.shape, np.float32),
+                       np.zeros(best.shape, np.uint16), 0]
+        label, conf, instance, seen = canvas
         upd = best > conf
         label[upd] = k
         conf[upd] = best[upd]
+        # instances numbered from 1 across the prompts (at most 65535 per image)
+        instance[upd] = np.minimum(seen + 1 + which[upd], np.iinfo(np.uint16).max)
+        canvas[3] = seen + int(keep.numel())
 
     def _nearest(self, n_in: int, n_out: int) -> NDArray[np.intp]:
         """Source indices of torch's ``nearest-exact`` resize (pixel centres aligned) along one axis."""
@@ -307,13 +313,13 @@ class Sam3Segmenter:
         return self._index[key]
 
     def _finish(self, canvas: list[Any], shape: tuple[int, int], stamp_ns: int) -> Segmentation:
-        """The frame's label and confidence at image size: the mask-resolution canvas, resized once."""
+        """The frame's label, confidence and instances at image size: the mask-resolution canvas, resized once."""
         if not canvas:
             return Segmentation(stamp_ns, np.zeros(shape, np.uint16), self.names, np.zeros(shape, np.float32))
-        label, conf = canvas
+        label, conf, instance, _ = canvas
         ys = self._nearest(label.shape[0], shape[0])[:, None]
         xs = self._nearest(label.shape[1], shape[1])[None, :]
-        return Segmentation(stamp_ns, label[ys, xs], self.names, conf[ys, xs])
+        return Segmentation(stamp_ns, label[ys, xs], self.names, conf[ys, xs], instance[ys, xs])
 
     def segment(self, image: Image) -> Segmentation:
         """Cached path: one image embedding, then the decoder once per prompt."""

@@ -461,6 +461,26 @@ def test_two_beds_the_camera_told_apart_are_two_objects_however_near():
     assert -1.5 <= left <= -0.6 and 0.1 <= right <= 1.0  # each within its own bed's footprint
 
 
+def test_an_objects_views_are_the_scans_that_saw_it():
+    """``views`` counts the painted scans whose furniture points landed on the object, seen from all
+    sides (no single leg is seen by every scan, so no one cell's count tells it)."""
+    world = World().room(-4, -4, 4, 4)
+    for dx in (-0.19, 0.19):
+        for dy in (-0.19, 0.19):
+            world.leg((dx, dy), 0.0175, 2, SEMI, 1)
+    poses = orbit((0.0, 0.0), 2.0, 16)
+    scans = [world.scan(p) for p in poses]
+    saw = sum(bool(np.any(sc.instance >= 0)) for sc in scans)
+    g = SemanticGrid(GridConfig(), NAMES)
+    for p, sc in zip(poses, scans):
+        g.integrate(np.asarray(p, float), sc)
+    lay = g.layers()
+    chairs = [o for o in clean(lay, CleaningConfig(), NAMES).objects if o.class_name == "chair"]
+    assert len(chairs) == 1 and saw == 16
+    assert chairs[0].views == saw
+    assert lay.labelled.max() < saw  # what views counted before: the most labelled hits of one cell
+
+
 def test_sightings_keep_their_cells_while_the_grid_grows():
     """The fusion window grows as the robot drives away; each sighting still names the cell it was made in."""
     world = World().room(-4, -4, 4, 4)

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -89,8 +89,9 @@ class SemiStaticObject:
     size: tuple[float, float]
     yaw: float
     n_cells: int
-    #: painted scans that saw it: the most camera-labelled hits any one of its cells gathered
-    #: (one per scan and cell); 0 for an object flagged from geometry alone
+    #: painted scans whose furniture points landed on it (maps built before sightings were kept:
+    #: the most camera-labelled hits any one of its cells gathered); 0 for an object flagged from
+    #: geometry alone
     views: int = 0
 
     def as_dict(self) -> dict[str, object]:
@@ -648,10 +649,10 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     """Group the semi-static cells into objects: per class, then by proximity and size.
 
     Each cell is named by its own most-hit movable class, or else by the nearest named cell's.
-    Cells of one class join when they are at most ``0.9 x`` the class's typical size apart (the
-    legs of a table span its top; ``config/classes.yaml``, sizes:), and never less than
-    ``link_cells``; a group much longer than one object of its class (a row of chairs) is cut
-    along its length into as many objects as fit.
+    Cells of one class join into objects as :func:`_join_parts` says (the camera's sightings,
+    else proximity and typical size, ``config/classes.yaml``, sizes:); a group much longer than
+    one object of its class (a row of chairs) is cut along its length into as many objects as
+    fit. An object's ``views`` are the painted scans whose furniture points landed on it.
     """
     if not semi.any():
         return []
@@ -667,6 +668,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     sizes = _class_sizes(layers, names)
     layer_names = [names[c] for c in layers.class_ids]
     labelled = layers.labelled
+    seen_by = _scans_per_cell(layers.sightings, spec.shape)
     out: list[SemiStaticObject] = []
     for k in np.unique(cls[semi]):
         mask = semi & (cls == k)
@@ -683,7 +685,8 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
             xs = spec.origin_x + (cols[sel] + 0.5) * res
             ys = spec.origin_y + (rows[sel] + 0.5) * res
             for part in _split(np.column_stack([xs, ys]), size):
-                views = int(labelled[rows[sel][part], cols[sel][part]].max())
+                r_, c_ = rows[sel][part], cols[sel][part]
+                views = seen_by(r_, c_) if seen_by is not None else int(labelled[r_, c_].max())
                 out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
     out.sort(key=lambda o: (o.centroid[1], o.centroid[0]))
     return out
@@ -799,6 +802,27 @@ def _co_seen(group: NDArray[np.int64], part: NDArray[np.int64], n: int, pa: NDAr
     inc = coo_matrix((np.ones(g.size), (gi, p)), shape=(int(gi.max()) + 1, n)).tocsc()
     co = (inc.T @ inc).tocsr()
     return np.asarray(co[pa, pb]).reshape(-1)
+
+
+def _scans_per_cell(sightings: NDArray[np.int32], shape: tuple[int, int]
+                    ) -> Callable[[NDArray[np.intp], NDArray[np.intp]], int] | None:
+    """How many scans sighted any of some cells (None for a grid without sightings: maps built
+    before they were kept, whose ``views`` are the most labelled hits of one cell instead)."""
+    if sightings.shape[0] == 0:
+        return None
+    h, w = shape
+    flat = sightings[:, 2].astype(np.int64) * w + sightings[:, 3]
+    order = np.argsort(flat, kind="stable")
+    flat, scans = flat[order], sightings[order, 0]
+
+    def count(rows: NDArray[np.intp], cols: NDArray[np.intp]) -> int:
+        cells = np.unique(rows.astype(np.int64) * w + cols)
+        lo, hi = np.searchsorted(flat, cells), np.searchsorted(flat, cells, side="right")
+        if not (hi > lo).any():
+            return 0
+        return int(np.unique(np.concatenate([scans[a:b] for a, b in zip(lo, hi) if b > a])).size)
+
+    return count
 
 
 def _attach_unseen(groups: list[NDArray[np.intp]], rows: NDArray[np.intp], cols: NDArray[np.intp],

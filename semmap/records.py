@@ -294,18 +294,15 @@ class Segmentation:
         lab.setflags(write=False)
         object.__setattr__(self, "label", lab)
         object.__setattr__(self, "names", tuple(self.names))
-        if self.confidence is not None:
-            c = np.asarray(self.confidence, dtype=np.float32)
-            if c.shape != lab.shape:
-                raise ValueError(f"confidence shape {c.shape} differs from label shape {lab.shape}")
-            c.setflags(write=False)
-            object.__setattr__(self, "confidence", c)
-        if self.instance is not None:
-            i = np.asarray(self.instance, dtype=np.uint16)
-            if i.shape != lab.shape:
-                raise ValueError(f"instance shape {i.shape} differs from label shape {lab.shape}")
-            i.setflags(write=False)
-            object.__setattr__(self, "instance", i)
+        for name, dtype in (("confidence", np.float32), ("instance", np.uint16)):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            a = np.asarray(value, dtype=dtype)
+            if a.shape != lab.shape:
+                raise ValueError(f"{name} shape {a.shape} differs from label shape {lab.shape}")
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
 
 
 @dataclass(frozen=True)

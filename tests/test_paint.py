@@ -47,15 +47,20 @@ def _scan(lidar, ranges, stamp_ns, lcfg):
                 lcfg.range_min, lcfg.range_max, lidar.time_increment, 1.0 / lcfg.rate_hz)
 
 
-def test_points_take_the_class_and_mobility_of_their_mask():
-    ps, labels = _world()
+def _capture(ps, labels):
+    """One scan and one camera frame from the origin: (T_base_lidar, calibration, frame, scan, the
+    object-table row each beam hit)."""
     lcfg, ccfg, t_base_lidar, calib = _rig()
     lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))
     sweep = lidar.cast(np.zeros(3), ps)
     frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
-    scan = _scan(lidar, sweep.ranges, 0, lcfg)
-    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO))
     owner = np.where(sweep.part >= 0, sweep.parts.owner[np.maximum(sweep.part, 0)], -1)
+    return t_base_lidar, calib, frame, _scan(lidar, sweep.ranges, 0, lcfg), owner
+
+
+def test_points_take_the_class_and_mobility_of_their_mask():
+    t_base_lidar, calib, frame, scan, owner = _capture(*_world())
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO))
     person, chair_, walls = owner == 4, owner == 3, (owner >= 0) & (owner <= 2)
     assert person.sum() >= 4 and chair_.sum() >= 2
     assert np.all(painted.mobility[person] == Mobility.DYNAMIC)
@@ -208,13 +213,7 @@ def _two_chairs():
 def test_furniture_points_name_the_object_the_camera_saw_them_on():
     """Two chairs of one class: without instance masks, each chair's points share the number of its mask
     region, and the two differ; with the backend's instance image, the points take its instances."""
-    ps, labels = _two_chairs()
-    lcfg, ccfg, t_base_lidar, calib = _rig()
-    lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))
-    sweep = lidar.cast(np.zeros(3), ps)
-    frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
-    scan = _scan(lidar, sweep.ranges, 0, lcfg)
-    owner = np.where(sweep.part >= 0, sweep.parts.owner[np.maximum(sweep.part, 0)], -1)
+    t_base_lidar, calib, frame, scan, owner = _capture(*_two_chairs())
     a, b = owner == 3, owner == 4
     assert a.sum() >= 2 and b.sum() >= 2
 

@@ -44,6 +44,13 @@ def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
     assert summary["registration"]["icp_rejected"] <= 2
     objs = json.loads((demo_map.out / "semi_static_objects.json").read_text())["objects"]
     assert {"chair", "couch"} <= {o["class"] for o in objs}
+    # the sightings the object list was grouped by: scans in range, cells on the flagged furniture
+    s = grid["sightings"]
+    assert s.shape[1] == 4 and s.shape[0] > 1000
+    assert s[:, 0].min() >= 0 and s[:, 0].max() < 418
+    near = grid["semi_static"][s[:, 2], s[:, 3]]
+    assert near.mean() > 0.8
+    assert max(o["views"] for o in objs) <= 418
 
 
 def test_demo_map_matches_the_ground_truth(demo_tour, demo_map):
@@ -57,6 +64,7 @@ def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map
     single = build(demo_tour.out, tmp_path / "single", overrides={"workers": False})
     a, b = np.load(demo_map.out / "grid.npz"), np.load(single.out / "grid.npz")
     assert np.array_equal(a["log_odds"], b["log_odds"]) and np.array_equal(a["mobility"], b["mobility"])
+    assert np.array_equal(a["sightings"], b["sightings"])
     assert read_tum(demo_map.out / "trajectory.tum")[1] == pytest.approx(read_tum(single.out / "trajectory.tum")[1])
     # CPU time per process: every worker did its share (raw label images are read in the main process,
     # with no frame worker); one process does it all itself

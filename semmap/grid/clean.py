@@ -93,11 +93,13 @@ class SemiStaticObject:
     #: the most camera-labelled hits any one of its cells gathered); 0 for an object flagged from
     #: geometry alone
     views: int = 0
+    #: the convex hull of its cells (x, y corners, m, counter-clockwise): the floor it takes
+    footprint: tuple[tuple[float, float], ...] = ()
 
     def as_dict(self) -> dict[str, object]:
         return {"class": self.class_name, "centroid": [round(v, 3) for v in self.centroid],
                 "size": [round(v, 3) for v in self.size], "yaw": round(self.yaw, 4), "n_cells": self.n_cells,
-                "views": self.views}
+                "views": self.views, "footprint": [list(p) for p in self.footprint]}
 
 
 @dataclass(frozen=True)
@@ -890,5 +892,9 @@ def _box(cname: str, pts: NDArray[np.float64], res: float, views: int) -> SemiSt
     if h > w:
         w, h, yaw = h, w, yaw + math.pi / 2
     yaw = (yaw + math.pi / 2) % math.pi - math.pi / 2
+    # the footprint: the convex hull of its cells' corners, counter-clockwise
+    corners = (pts[:, None, :] + 0.5 * res * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None]).reshape(-1, 2)
+    hull = cv2.convexHull(corners.astype(np.float32), clockwise=False).reshape(-1, 2).astype(np.float64)
     return SemiStaticObject(cname, (float(pts[:, 0].mean()), float(pts[:, 1].mean())), (float(w), float(h)),
-                            float(yaw), int(pts.shape[0]), views)
+                            float(yaw), int(pts.shape[0]), views,
+                            tuple((round(float(x), 3) + 0.0, round(float(y), 3) + 0.0) for x, y in hull))  # no -0.0

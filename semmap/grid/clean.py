@@ -648,7 +648,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
 
 def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
              link_cells: float) -> list[SemiStaticObject]:
-    """Group the semi-static cells into objects: per class, then by proximity and size.
+    """Group the semi-static cells into objects: per class, then by the camera's sightings, proximity and size.
 
     Each cell is named by its own most-hit movable class, or else by the nearest named cell's.
     Cells of one class join into objects as :func:`_join_parts` says (the camera's sightings,
@@ -716,7 +716,6 @@ def _join_parts(mask: NDArray[np.bool_], sightings: NDArray[np.int32], link_cell
     n, lab = group_cells(mask, link_cells)
     if n < 2:
         return n, lab
-    from scipy.sparse import coo_matrix
     from scipy.spatial import cKDTree
 
     rows, cols = np.nonzero(lab)
@@ -738,7 +737,8 @@ def _join_parts(mask: NDArray[np.bool_], sightings: NDArray[np.int32], link_cell
     key, d = key[order][first], d[order][first]
     pa, pb = key // n, key % n
     # scans that saw both parts, and scans that saw them on one object
-    together = both = together_told = both_told = np.zeros(key.size)
+    together, both = np.zeros(key.size), np.zeros(key.size)
+    together_told, both_told = np.zeros(key.size), np.zeros(key.size)
     if sightings.shape[0]:
         h, w = lab.shape
         sr, sc = sightings[:, 2], sightings[:, 3]
@@ -748,14 +748,14 @@ def _join_parts(mask: NDArray[np.bool_], sightings: NDArray[np.int32], link_cell
         on = sp >= 0
         if on.any():
             scan, inst, sp = sightings[on, 0].astype(np.int64), sightings[on, 1].astype(np.int64), sp[on]
-            both = _co_seen(scan, sp, n, pa, pb, coo_matrix)
-            _, view = np.unique(np.column_stack([scan, inst]), axis=0, return_inverse=True)
+            both = _co_seen(scan, sp, n, pa, pb)
+            _, view = np.unique((scan << 32) | inst, return_inverse=True)  # one object in one scan
             view = view.reshape(-1)
-            together = np.minimum(_co_seen(view, sp, n, pa, pb, coo_matrix), both)
+            together = np.minimum(_co_seen(view, sp, n, pa, pb), both)
             told = inst < REGION_BASE  # the backend's instances: they also tell objects apart
             if told.any():
-                both_told = _co_seen(scan[told], sp[told], n, pa, pb, coo_matrix)
-                together_told = np.minimum(_co_seen(view[told], sp[told], n, pa, pb, coo_matrix), both_told)
+                both_told = _co_seen(scan[told], sp[told], n, pa, pb)
+                together_told = np.minimum(_co_seen(view[told], sp[told], n, pa, pb), both_told)
     same = (together >= 2) & (together >= _TOGETHER * both) & (d <= far)
     apart = (both_told >= 3) & (together_told <= _APART * both_told)
     near = (d <= 0.9 * size_cells) & ~apart
@@ -797,8 +797,10 @@ def _join_parts(mask: NDArray[np.bool_], sightings: NDArray[np.int32], link_cell
 
 
 def _co_seen(group: NDArray[np.int64], part: NDArray[np.int64], n: int, pa: NDArray[np.int64],
-             pb: NDArray[np.int64], coo_matrix: type) -> NDArray[np.float64]:
+             pb: NDArray[np.int64]) -> NDArray[np.float64]:
     """For each part pair (pa, pb): how many of the groups (scans, or objects in a scan) hold both."""
+    from scipy.sparse import coo_matrix
+
     g = np.unique(group * n + part)
     gi, p = g // n, g % n
     inc = coo_matrix((np.ones(g.size), (gi, p)), shape=(int(gi.max()) + 1, n)).tocsc()

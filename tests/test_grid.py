@@ -423,6 +423,23 @@ def test_the_legs_of_one_table_are_one_object_and_a_row_of_chairs_is_several():
     assert sorted(round(c.centroid[0], 1) for c in chairs) == pytest.approx([-0.55, 0.0, 0.55], abs=0.1)
 
 
+def test_two_chairs_a_hand_apart_are_two_chairs_not_three():
+    """Two chairs 0.84 m apart with 7 cm legs: their eight legs stand in one evenly spaced row (0.38 m
+    within a chair, 0.46 m between them) 1.3 m long, one group by proximity; cut as chairs with a gap
+    between them (two), not as chairs packed side by side (three)."""
+    world = World().room(-4, -4, 4, 4)
+    for x in (-0.42, 0.42):
+        for dx in (-0.19, 0.19):
+            for dy in (-0.19, 0.19):
+                world.leg((x + dx, 1.5 + dy), 0.035, 2, SEMI)
+    poses = [(0.0, 0.0, a) for a in np.linspace(-np.pi, np.pi, 24, endpoint=False)]
+    poses += [(x, 0.0, math.pi / 2) for x in (-1.5, 1.5)]
+    chairs = _objects_of(world, poses, "chair")
+    assert len(chairs) == 2
+    left, right = sorted(c.centroid[0] for c in chairs)
+    assert -0.62 < left < -0.18 and 0.18 < right < 0.62  # each within its own chair's legs
+
+
 def _objects_of(world: World, poses, cls: str) -> list:
     lay = fuse(world, poses).layers()
     return [o for o in clean(lay, CleaningConfig(), NAMES).objects if o.class_name == cls]

@@ -855,6 +855,8 @@ def _attach_unseen(groups: list[NDArray[np.intp]], rows: NDArray[np.intp], cols:
 #: runs are cut (a row of chairs)
 _PROXIMITY_LENGTH = 1.3
 _SPLIT_LENGTH = 1.5
+#: m, the space objects standing in a row keep between them (chairs along a table)
+_ROW_GAP = 0.1
 
 
 def _length(pts: NDArray[np.float64]) -> float:
@@ -867,8 +869,9 @@ def _length(pts: NDArray[np.float64]) -> float:
 
 
 def _split(pts: NDArray[np.float64], size: float) -> list[NDArray[np.intp]]:
-    """Indices of ``pts`` cut into pieces about ``size`` long along their principal axis (one piece
-    when they span less than ``_SPLIT_LENGTH`` sizes)."""
+    """Indices of ``pts`` cut into pieces about ``size`` long along their principal axis, as many as
+    objects of that size fit with ``_ROW_GAP`` between them (one piece when they span less than
+    ``_SPLIT_LENGTH`` sizes)."""
     if pts.shape[0] < 2:
         return [np.arange(pts.shape[0])]
     c = pts - pts.mean(axis=0)
@@ -877,7 +880,8 @@ def _split(pts: NDArray[np.float64], size: float) -> list[NDArray[np.intp]]:
     length = float(np.ptp(t))
     if length <= _SPLIT_LENGTH * size:
         return [np.arange(pts.shape[0])]
-    k = max(round(length / size), 2)
+    # k objects of ``size`` in a row, _ROW_GAP apart, span k * size + (k - 1) * _ROW_GAP
+    k = max(round((length + _ROW_GAP) / (size + _ROW_GAP)), 2)
     edges = t.min() + length * np.arange(1, k) / k
     piece = np.searchsorted(edges, t)
     return [np.flatnonzero(piece == j) for j in range(k) if (piece == j).any()]

@@ -330,7 +330,7 @@ def test_chair_legs_are_flagged_semi_static_and_listed():
     assert len(chairs) == 1
     assert np.hypot(chairs[0].centroid[0] - 1.0, chairs[0].centroid[1] - 0.5) < 0.1
     assert 0.3 <= chairs[0].size[0] <= 0.6
-    # its footprint: the hull around the four legs, counter-clockwise (REP-103, x forward, y left)
+    # its footprint: the box around the four legs, counter-clockwise (REP-103, x forward, y left)
     fp = np.asarray(chairs[0].footprint)
     area = 0.5 * float(np.sum(fp[:, 0] * np.roll(fp[:, 1], -1) - np.roll(fp[:, 0], -1) * fp[:, 1]))
     assert 0.38 ** 2 < area < 0.6 ** 2

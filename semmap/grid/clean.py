@@ -93,7 +93,8 @@ class SemiStaticObject:
     #: the most camera-labelled hits any one of its cells gathered); 0 for an object flagged from
     #: geometry alone
     views: int = 0
-    #: the convex hull of its cells (x, y corners, m, counter-clockwise): the floor it takes
+    #: the corners of the oriented box around its cells (x, y, m, counter-clockwise; ``size`` and
+    #: ``yaw`` are its sides and heading): the floor it takes
     footprint: tuple[tuple[float, float], ...] = ()
 
     def as_dict(self) -> dict[str, object]:
@@ -889,18 +890,20 @@ def _split(pts: NDArray[np.float64], size: float) -> list[NDArray[np.intp]]:
 
 def _box(cname: str, pts: NDArray[np.float64], res: float, views: int) -> SemiStaticObject:
     p32 = pts.astype(np.float32)
-    _, (w, h), ang = cv2.minAreaRect(p32)
+    (cx, cy), (w, h), ang = cv2.minAreaRect(p32)
     aw, ah = np.ptp(pts[:, 0]), np.ptp(pts[:, 1])
     if w * h >= 0.9 * aw * ah:  # barely better than the map axes: keep those
-        w, h, ang = float(aw), float(ah), 0.0
+        (cx, cy), w, h, ang = (pts.min(axis=0) + 0.5 * np.array([aw, ah])), float(aw), float(ah), 0.0
     w, h = w + res, h + res  # cell centres to cell extents
     yaw = math.radians(ang)
     if h > w:
         w, h, yaw = h, w, yaw + math.pi / 2
     yaw = (yaw + math.pi / 2) % math.pi - math.pi / 2
-    # the footprint: the convex hull of its cells' corners, counter-clockwise
-    corners = (pts[:, None, :] + 0.5 * res * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None]).reshape(-1, 2)
-    hull = cv2.convexHull(corners.astype(np.float32), clockwise=False).reshape(-1, 2).astype(np.float64)
+    # the footprint: that box's corners, counter-clockwise (an object seen from two sides, such as a
+    # couch in a corner, is its whole box, not the L its seen faces make)
+    c, s = math.cos(yaw), math.sin(yaw)
+    half = 0.5 * np.array([[w, h], [-w, h], [-w, -h], [w, -h]])
+    corners = np.array([float(cx), float(cy)]) + half @ np.array([[c, s], [-s, c]])
     return SemiStaticObject(cname, (float(pts[:, 0].mean()), float(pts[:, 1].mean())), (float(w), float(h)),
                             float(yaw), int(pts.shape[0]), views,
-                            tuple((round(float(x), 3) + 0.0, round(float(y), 3) + 0.0) for x, y in hull))  # no -0.0
+                            tuple((round(float(x), 3) + 0.0, round(float(y), 3) + 0.0) for x, y in corners))  # no -0.0

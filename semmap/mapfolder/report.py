@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.patches import Patch, Polygon  # noqa: E402
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
 
 from ..geometry import se2_between, se2_compose  # noqa: E402
@@ -67,6 +67,9 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
     return img, legend
 
 
+_OUTLINE = "#333333"  # the outline of a movable object's footprint
+
+
 def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _Pipeline) -> dict[str, str]:
     """Draw semantic.png, report/trajectory.png and report/classes.png; return their relative paths."""
     (out / "report").mkdir(exist_ok=True)
@@ -81,8 +84,15 @@ def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _P
     fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
     ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
     ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=0.8, alpha=0.7)
+    # the object list: each movable object's footprint, outlined
+    for o in cleaned.objects:
+        if len(o.footprint) >= 3:
+            ax.add_patch(Polygon(np.asarray(o.footprint), closed=True, fill=False, lw=0.7, ls="--",
+                                 edgecolor=_OUTLINE))
     handles = [Patch(facecolor=np.array(c) / 255, edgecolor="0.6", label=k) for k, c in legend.items()]
     handles.append(plt.Line2D([], [], color="#1f5fbf", label="robot path"))
+    if cleaned.objects:
+        handles.append(Patch(fill=False, ls="--", lw=0.7, edgecolor=_OUTLINE, label="movable object"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     bar = 1.0 if w_m < 15 else 5.0
     ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower right", pad=0.4, frameon=True,

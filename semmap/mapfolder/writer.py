@@ -2,7 +2,7 @@
 
     OUT/
       map.yaml + map.pgm          the cleaned map for map_server / nav2 (trinary)
-      semantic.png                the map coloured by mobility and class, with legend and scale bar
+      semantic.png                the map coloured by mobility and class, objects outlined, legend, scale bar
       semi_static.yaml + .pgm     the cells flagged movable (occupied = semi-static)
       semi_static_objects.json    movable objects: class, centroid, extent, cells
       grid.npz                    full fidelity: log-odds, hit/free counts, mobility and class counts,

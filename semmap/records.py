@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from .geometry import is_rotation, se3_inverse
 
 __all__ = [
+    "REGION_BASE",
     "Mobility",
     "Pose2",
     "CameraIntrinsics",

@@ -69,6 +69,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..config import PaintConfig
+from ..records import REGION_BASE
 
 __all__ = ["OcclusionParams", "hidden_points", "mask_regions"]
 
@@ -341,7 +342,7 @@ class _Components:
         for value in np.unique(la[la > 0]):
             m = la == value
             region = self._of(int(value)).at(self.row[idx[m]], self.col[idx[m]]).astype(np.int32)
-            out[m] = np.where(region > 0, (int(value) << 16) + region, -1)
+            out[m] = np.where(region > 0, int(value) * REGION_BASE + region, -1)
         return out
 
     def row_joined(self, a: NDArray[np.intp], b: NDArray[np.intp], min_share: float = 0.8) -> NDArray[np.bool_]:

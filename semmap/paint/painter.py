@@ -339,7 +339,7 @@ class Painter:
         # the object each furniture point lies on, to tell objects apart in the map's object list
         semi = np.flatnonzero(mob == Mobility.SEMI_STATIC)
         if semi.size:
-            pix = px[seen][in_img][semi]
+            pix = px[ok][semi]
             if seg.instance is not None:
                 key = seg.instance[pix[:, 1], pix[:, 0]].astype(np.int32)
                 key[key == 0] = -1

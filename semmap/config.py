@@ -202,6 +202,16 @@ class SyncConfig(_Model):
     deskew: bool = Field(True, description="undo the robot's motion during a scan sweep through odometry")
     max_odom_gap: float = Field(0.5, gt=0, le=3600, description="odometry gaps longer than this are not "
                                                                  "interpolated, s")
+    # buffering of the scan stream (semmap.paint.stream): memory stays bounded however long the tour
+    max_wait_s: float = Field(2.0, gt=0, le=3600, description="a scan waits for odometry covering its sweep at "
+                                                              "most this long in bag time, then is painted "
+                                                              "with what there is, s")
+    max_wait_scans: int = Field(64, gt=0, description="... or until this many scans wait")
+    keep_images_s: float = Field(0.5, ge=0, le=3600, description="segmentations are kept this long after the "
+                                                                 "pairing window has passed them, s")
+    keep_odometry_s: float = Field(1.0, ge=0, le=3600, description="odometry is kept this long before the "
+                                                                   "latest scan (motion compensation and "
+                                                                   "deskewing look back), s")
 
 
 class SegmentationConfig(_Model):

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import platform
 import time
 from array import array
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,18 +30,32 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .classes import load_class_table
-from .config import BuildConfig, merge_overrides
+from .config import BuildConfig
 from .errors import BagError, ConfigError
 from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
-from .io.bag import ReadStats, iter_messages, message_count, open_bag, resolve_bag_path
-from .io.messages import odometry_from_msg, scan_from_msg
-from .io.tour import IMAGE_T, Tour, load_build_config, open_tour
-from .paint.motion import OdomTrack
+from .io.bag import resolve_bag_path
+from .io.tour import IMAGE_T, Tour
+from .mapfolder.summary import (
+    BuildSummary,
+    CountsSummary,
+    MapSummary,
+    MessagesSummary,
+    OcclusionSummary,
+    PaintingSummary,
+    ThroughputSummary,
+    TimingsSummary,
+    TourFrames,
+    TourSummary,
+    TourTopics,
+)
+from .mapfolder.writer import MAP_FOLDER_VERSION, BuildOutcome, write_map_folder
 from .paint.painter import Painter
-from .records import PaintedScan, Scan, Segmentation
+from .paint.stream import ScanStream, open_build_tour, tour_class_names
 from .segment.base import backend_consumes
-from .workers import FrameSource, FrameWorker, InProcessFrames, InProcessMapper, Mapper, MapperResult, MapperWorkers
+from .segment.frames import FrameSource, InProcessFrames
+from .version import __version__
+from .workers import FrameWorker, InProcessMapper, Mapper, MapperResult, MapperWorkers
 
 __all__ = ["build", "BuildResult"]
 
@@ -53,10 +67,10 @@ ProgressFn = Callable[[int, int], None]
 
 @dataclass(frozen=True)
 class BuildResult:
-    """What :func:`build` produced."""
+    """What :func:`build` produced: the map folder and its summary (``summary.json``)."""
 
     out: Path
-    summary: dict[str, Any]
+    summary: BuildSummary
     elapsed_s: float
 
 
@@ -65,21 +79,16 @@ class _Timers:
     read: float = 0.0
     paint: float = 0.0
     hand_over: float = 0.0  # giving scans to the mapping stages, and waiting for them at the end
+    wait_images: float = 0.0  # waiting for segmentations (a model slower than the mapping shows here)
     clean: float = 0.0
-    write: float = 0.0
-
-    def as_dict(self) -> dict[str, float]:
-        return {k: round(v, 3) for k, v in self.__dict__.items()}
 
 
 class _Trace:
-    """Per scan: its stamp and the odometry pose at it, kept compactly (32 bytes a scan), and the map-frame
-    poses registration returns at the end."""
+    """Per scan: its stamp and the odometry pose at it, kept compactly (32 bytes a scan)."""
 
     def __init__(self) -> None:
         self._stamps = array("q")
         self._odom = array("d")  # x, y, yaw per scan; NaN where there was no odometry
-        self.poses: NDArray[np.float64] = np.zeros((0, 3))
 
     def add(self, stamp_ns: int, odom_pose: NDArray[np.float64] | None) -> None:
         self._stamps.append(stamp_ns)
@@ -87,144 +96,40 @@ class _Trace:
 
     @property
     def stamps(self) -> NDArray[np.int64]:
-        return np.frombuffer(self._stamps, np.int64) if self._stamps else np.zeros(0, np.int64)
+        return np.frombuffer(self._stamps, np.int64).copy() if self._stamps else np.zeros(0, np.int64)
 
     @property
     def odom(self) -> NDArray[np.float64]:
         """(N, 3); rows of NaN where the scan had no odometry."""
-        return np.frombuffer(self._odom, np.float64).reshape(-1, 3) if self._odom else np.zeros((0, 3))
+        return np.frombuffer(self._odom, np.float64).reshape(-1, 3).copy() if self._odom else np.zeros((0, 3))
 
 
 _NO_ODOM = (float("nan"),) * 3
 
 
-class _Pipeline:
-    """The streaming core: buffers just enough to pair scans with images and odometry."""
+@dataclass
+class _Run:
+    """What the streaming loop gathered, for the summary and the warnings."""
 
-    def __init__(self, tour: Tour, cfg: BuildConfig, class_names: tuple[str, ...], frames: FrameSource | None,
-                 mapper: Mapper | None):
-        self.tour = tour
-        self.cfg = cfg
-        self.class_names = class_names
-        self.frame_source = frames
-        self.mapper = mapper
-        self.result: MapperResult | None = None
-        table = load_class_table(cfg.segmentation.classes_file)
-        self.painter = Painter(tour.T_base_lidar, tour.calibration, class_names, table, cfg.paint, cfg.sync,
-                               cfg.grid.no_return_range)
-        self.odom = OdomTrack(cfg.sync.max_odom_gap) if tour.topics.odometry else None
-        self.segs: deque[Segmentation] = deque()
-        self.frames_done = frames is None
-        self.pending: deque[tuple[int, Scan]] = deque()  # (bag time, scan)
-        self.max_offset_ns = int(cfg.sync.max_image_offset * 1e9)
-        self.trace = _Trace()
-        self.timers = _Timers()
-        self.counts = {"scans": 0, "scans_without_image": 0, "scans_without_odometry": 0, "odometry": 0,
-                       "bad_scans": 0, "scans_out_of_order": 0}
-        self._last_scan_ns: tuple[int, int] | None = None  # stamp and reference time of the last scan
-        self.cpu_s: dict[str, float] = {}  # CPU time of the streaming loop, per process
-        self.warnings: list[str] = []  # what the build warned about
-        self.unpaired_offsets_ns: list[int] = []  # scans with no image close enough: the nearest one's offset
-        self.mobility_hits = np.zeros(4, np.int64)
-        self.class_hits = np.zeros(len(class_names), np.int64)
-
-    # -- inputs -----------------------------------------------------------------------------
-    def on_odometry(self, msg: Any) -> None:
-        assert self.odom is not None
-        stamp, _, _, pose = odometry_from_msg(msg, self.tour.topics.odometry or "")
-        self.odom.add(stamp, pose)
-        self.counts["odometry"] += 1
-
-    def on_scan(self, t_bag: int, msg: Any) -> None:
-        scan = scan_from_msg(msg, self.tour.topics.scan)
-        n = scan.ranges.size
-        if n == 0 or not np.isfinite(scan.angle_increment) or scan.angle_increment == 0:
-            self.counts["bad_scans"] += 1
-            return
-        self.pending.append((t_bag, scan))
-
-    # -- processing --------------------------------------------------------------------------
-    @staticmethod
-    def _end_ns(scan: Scan) -> int:
-        return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
-
-    def _ready(self, t_bag_now: int, scan_bag: int, scan: Scan) -> bool:
-        # odometry must reach past the sweep and the latest image it may be paired with (motion compensation)
-        need = self._end_ns(scan) + self.max_offset_ns
-        odom_ok = self.odom is None or (self.odom.last_ns is not None and self.odom.last_ns >= need)
-        stalled = t_bag_now - scan_bag > 2_000_000_000 or len(self.pending) > 64
-        return odom_ok or stalled
-
-    def process_ready(self, t_bag_now: int) -> None:
-        while self.pending and self._ready(t_bag_now, *self.pending[0]):
-            self._process(self.pending.popleft()[1])
-
-    def flush(self) -> None:
-        while self.pending:
-            self._process(self.pending.popleft()[1])
-
-    def _segmentation(self, scan: Scan) -> Segmentation | None:
-        """The segmentation nearest the scan's middle, pulling frames only as far as needed."""
-        mid = scan.stamp_ns + (self._end_ns(scan) - scan.stamp_ns) // 2
-        while not self.frames_done and (not self.segs or self.segs[-1].stamp_ns < mid + self.max_offset_ns):
-            seg = self.frame_source.next()
-            if seg is None:
-                self.frames_done = True
-            else:
-                self.segs.append(seg)
-        while len(self.segs) > 1 and self.segs[0].stamp_ns < mid - self.max_offset_ns - 500_000_000:
-            self.frame_source.release(self.segs.popleft())
-        if not self.segs:
-            return None
-        best = min(self.segs, key=lambda s: abs(s.stamp_ns - mid))
-        if abs(best.stamp_ns - mid) <= self.max_offset_ns:
-            return best
-        if len(self.unpaired_offsets_ns) < 4096:  # why scans found no image: for the warning at the end
-            self.unpaired_offsets_ns.append(abs(best.stamp_ns - mid))
-        return None
-
-    def _process(self, scan: Scan) -> None:
-        # repeated or backwards stamps, or a sweep whose middle comes before the last one's: skipped, counted
-        ref = Painter.reference_ns(scan)
-        if self._last_scan_ns is not None and (scan.stamp_ns <= self._last_scan_ns[0] or ref <= self._last_scan_ns[1]):
-            self.counts["scans_out_of_order"] += 1
-            return
-        self._last_scan_ns = (scan.stamp_ns, ref)
-        t0 = time.perf_counter()
-        self._handle(scan, self._segmentation(scan), t0)
-        if self.odom is not None:
-            self.odom.trim(scan.stamp_ns - 1_000_000_000)  # forget what no future scan needs
-
-    def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:
-        """Paint a scan paired with its segmentation and hand it to the mapper."""
-        try:
-            painted = self.painter.paint(scan, self.odom, seg)
-        except BagError as exc:  # a label image that does not fit the calibration
-            raise BagError(f"{self.tour.bag}: {self.tour.topics.frames}: {exc}") from None
-        odom_pose = self.painter.last_odom_pose
-        t1 = time.perf_counter()
-        self.mapper.push(painted, odom_pose)
-        self.timers.paint += t1 - t0
-        self.timers.hand_over += time.perf_counter() - t1  # the mapper times its own work
-        self.counts["scans"] += 1
-        if seg is None:
-            self.counts["scans_without_image"] += 1
-        if self.odom is not None and odom_pose is None:
-            self.counts["scans_without_odometry"] += 1
-        self._tally(painted)
-        self.trace.add(painted.stamp_ns, odom_pose)
-
-    def _tally(self, painted: PaintedScan) -> None:
-        hit = painted.hit
-        self.mobility_hits += np.bincount(painted.mobility[hit], minlength=4)[:4]
-        cls = painted.class_id[hit]
-        cls = cls[cls >= 0]
-        if cls.size:
-            self.class_hits += np.bincount(cls, minlength=len(self.class_names))[: len(self.class_names)]
+    stream: ScanStream
+    painter: Painter
+    result: MapperResult
+    trace: _Trace
+    timers: _Timers
+    frame_counts: dict[str, Any]
+    loop_s: float
+    cpu_s: dict[str, float]
+    scans_without_image: int
+    scans_without_odometry: int
+    mobility_hits: NDArray[np.int64]  # painted hits per mobility value
+    class_hits: NDArray[np.int64]  # painted hits per class
 
     @property
-    def frame_counts(self) -> dict[str, int]:
-        return dict(self.frame_source.counts) if self.frame_source is not None else {"frames": 0, "bad_frames": 0}
+    def counts(self) -> dict[str, int]:
+        c = self.stream.counts
+        return {"scans": c.scans, "scans_without_image": self.scans_without_image,
+                "scans_without_odometry": self.scans_without_odometry, "odometry": c.odometry,
+                "bad_scans": c.bad_scans, "scans_out_of_order": c.scans_out_of_order}
 
 
 def _frames_are_light(cfg: BuildConfig, msgtype: str) -> bool:
@@ -233,30 +138,6 @@ def _frames_are_light(cfg: BuildConfig, msgtype: str) -> bool:
     handed over, against a view of the bag's bytes here (the office tour builds faster this way from
     ROS1 and from MCAP alike)."""
     return backend_consumes(cfg.segmentation) == "labels" and msgtype == IMAGE_T
-
-
-def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
-                    calibration: str | Path | None = None,
-                    overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
-    """The effective config and the opened tour, as ``semmap build`` sees them (also ``semmap paint``).
-
-    A simulated tour's manifest names the class list of its label images; it applies unless
-    the config sets ``segmentation.class_list``.
-    """
-    if isinstance(config, BuildConfig):
-        cfg, cfg_dir = config, Path.cwd()
-        if overrides:
-            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
-    else:
-        cfg, cfg_dir = load_build_config(config, overrides)
-    tour_path = Path(tour)
-    if not tour_path.exists():
-        raise BagError(f"{tour_path}: no such file or directory")
-    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
-    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
-        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
-        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
-    return tinfo, cfg
 
 
 def build(
@@ -277,7 +158,7 @@ def build(
     ``out`` is checked before any work: it must not exist unless ``force``, and ``force``
     replaces only a semmap map folder, never the tour being read. Nothing appears at ``out``
     until the whole map folder is written; on any error or interrupt nothing is left there,
-    and every worker process is stopped.
+    and every worker process is stopped. :func:`semmap.load_map` reads the folder back.
     """
     t_start = time.perf_counter()
     inputs = [p for p in (tour, calibration, config if not isinstance(config, BuildConfig) else None) if p]
@@ -288,47 +169,16 @@ def build(
         tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
         cfg = _effective_config(tinfo, cfg)
         _log_detected(tinfo, cfg)
-        frames: FrameSource | None = None
-        class_names: tuple[str, ...] = ()
         if tinfo.topics.frames is None:
             log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
-        else:
-            from .segment.base import create_segmenter
-
-            probe = create_segmenter(cfg.segmentation)  # class names (backends load models lazily)
-            class_names = probe.names
-            probe.close()
+        class_names = tour_class_names(tinfo, cfg)
         check_grid_memory(cfg.grid, cfg.registration.max_range, len(class_names))
-        mapper: Mapper | None = None
-        try:
-            msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
-            if cfg.workers:  # started first: they load their libraries while the rest is set up
-                mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
-            else:
-                mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
-            if tinfo.topics.frames is not None:
-                if cfg.workers and not _frames_are_light(cfg, msgtype):
-                    intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
-                    shape = (intr.height, intr.width) if intr is not None else None
-                    frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
-                else:
-                    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
-            pipe = _Pipeline(tinfo, cfg, class_names, frames, mapper)
-            for part in (frames, mapper):  # workers load their libraries before the clock starts
-                if part is not None:
-                    part.wait_ready()
-            stats, loop_s = _stream(tinfo, pipe, mapper, progress)
-        finally:
-            for part in (frames, mapper):
-                if part is not None:
-                    part.close()
-        if pipe.counts["scans"] == 0:
+        run = _run(tinfo, cfg, class_names, progress)
+        if run.stream.counts.scans == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
-        _warn_about_painting(tinfo, cfg, pipe)
-        pipe.warnings = warned.lines()
-        from .mapfolder.writer import write_map_folder
-
-        summary = write_map_folder(tmp, tinfo, cfg, pipe, pipe.result.layers, stats, loop_s, t_start)
+        _warn_about_painting(tinfo, cfg, run)
+        outcome = _outcome(tinfo, cfg, class_names, run, warned.lines(), t_start)
+        summary = write_map_folder(tmp, outcome)
     return BuildResult(Path(out), summary, time.perf_counter() - t_start)
 
 
@@ -359,35 +209,176 @@ class _KeptWarnings(logging.Handler):
         logging.getLogger("semmap").removeHandler(self)
 
 
-def _stream(tinfo: Tour, pipe: _Pipeline, mapper: Mapper, progress: ProgressFn | None) -> tuple[ReadStats, float]:
-    """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
-    topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
-    stats = ReadStats()
-    with open_bag(tinfo.bag) as reader:  # opened once: counting and streaming share its index
-        n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan, reader)
-        t_loop = time.perf_counter()
-        cpu_loop = time.process_time()
-        for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats, reader):
-            if topic == tinfo.topics.scan:
-                pipe.on_scan(t_bag, msg)
-                if progress is not None and stats.read.get(topic, 0) % 50 == 0:
-                    progress(stats.read.get(topic, 0), n_scan_msgs)
+def _run(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], progress: ProgressFn | None) -> _Run:
+    """Start the stages, stream the tour through them, and stop them, whatever happens."""
+    frames: FrameSource | None = None
+    mapper: Mapper | None = None
+    try:
+        msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
+        if cfg.workers:  # started first: they load their libraries while the rest is set up
+            mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
+        else:
+            mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
+        if tinfo.topics.frames is not None:
+            if cfg.workers and not _frames_are_light(cfg, msgtype):
+                intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
+                shape = (intr.height, intr.width) if intr is not None else None
+                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
             else:
-                pipe.on_odometry(msg)
-            pipe.process_ready(t_bag)
-        pipe.flush()
+                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+        painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
+                          load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
+                          cfg.grid.no_return_range)
+        for part in (frames, mapper):  # workers load their libraries before the clock starts
+            if part is not None:
+                part.wait_ready()
+        return _stream(tinfo, cfg, painter, frames, mapper, progress)
+    finally:
+        for part in (frames, mapper):
+            if part is not None:
+                part.close()
+
+
+def _stream(tinfo: Tour, cfg: BuildConfig, painter: Painter, frames: FrameSource | None, mapper: Mapper,
+            progress: ProgressFn | None) -> _Run:
+    """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
+    stream = ScanStream(tinfo, cfg.sync, frames, progress)
+    trace, timers = _Trace(), _Timers()
+    no_image = no_odom = 0
+    n_classes = len(painter.class_names)
+    mobility_hits = np.zeros(4, np.int64)
+    class_hits = np.zeros(n_classes, np.int64)
+    t_loop = time.perf_counter()
+    cpu_loop = time.process_time()
+    for item in stream:
+        t0 = time.perf_counter()
+        try:
+            res = painter.paint(item.scan, item.odometry, item.segmentation)
+        except BagError as exc:  # a label image that does not fit the calibration
+            raise BagError(f"{tinfo.bag}: {tinfo.topics.frames}: {exc}") from None
+        t1 = time.perf_counter()
+        mapper.push(res.painted, res.odom_pose)
+        timers.paint += t1 - t0
+        timers.hand_over += time.perf_counter() - t1  # the mapper times its own work
+        no_image += item.segmentation is None
+        no_odom += item.odometry is not None and res.odom_pose is None
+        hit = res.painted.hit
+        mobility_hits += np.bincount(res.painted.mobility[hit], minlength=4)[:4]
+        cls = res.painted.class_id[hit]
+        cls = cls[cls >= 0]
+        if cls.size:
+            class_hits += np.bincount(cls, minlength=n_classes)[:n_classes]
+        trace.add(res.painted.stamp_ns, res.odom_pose)
     t_wait = time.perf_counter()
-    pipe.result = mapper.finish()
-    pipe.trace.poses = pipe.result.poses
-    pipe.timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
+    result = mapper.finish()
+    timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
     loop_s = time.perf_counter() - t_loop
-    pipe.cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **pipe.result.cpu_s}
-    if "cpu_s" in pipe.frame_counts:
-        pipe.cpu_s["frames"] = pipe.frame_counts["cpu_s"]
-    pipe.timers.read = max(0.0, loop_s - pipe.timers.paint - pipe.timers.hand_over)
-    if progress is not None:
-        progress(n_scan_msgs, n_scan_msgs)
-    return stats, loop_s
+    frame_counts = dict(frames.counts) if frames is not None else {"frames": 0, "bad_frames": 0}
+    cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **result.cpu_s}
+    if "cpu_s" in frame_counts:
+        cpu_s["frames"] = frame_counts["cpu_s"]
+    timers.wait_images = stream.wait_images_s
+    timers.read = max(0.0, loop_s - timers.paint - timers.hand_over - timers.wait_images)
+    return _Run(stream, painter, result, trace, timers, frame_counts, loop_s, cpu_s, no_image, no_odom,
+                mobility_hits, class_hits)
+
+
+def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _Run, warnings: list[str],
+             t_start: float) -> BuildOutcome:
+    """Clean the fused grid and gather what the map folder holds."""
+    from .grid import clean
+    from .grid.clean import crop_to_observed
+
+    t0 = time.perf_counter()
+    layers = run.result.layers
+    cleaned = clean(layers, cfg.cleaning, class_names)
+    layers, cleaned = crop_to_observed(layers, cleaned, margin_m=1.0)
+    run.timers.clean = time.perf_counter() - t0
+    stamps, odom = run.trace.stamps, run.trace.odom
+    poses = np.asarray(run.result.poses, np.float64).reshape(-1, 3)
+    n = run.stream.counts.scans
+    span_s = float((stamps[-1] - stamps[0]) * 1e-9) if n > 1 else 0.0
+    ps = run.painter.stats
+    by_class: dict[str, int] = {}
+    for o in cleaned.objects:
+        by_class[o.class_name] = by_class.get(o.class_name, 0) + 1
+    spec = cleaned.spec
+    t = run.timers
+    loop = run.loop_s
+    summary = BuildSummary(
+        semmap_version=__version__,
+        map_folder_version=MAP_FOLDER_VERSION,
+        created_unix_s=round(time.time(), 3),
+        machine=f"{platform.machine()}, Python {platform.python_version()}",
+        tour=TourSummary(
+            bag=str(tinfo.bag),
+            scenario=tinfo.manifest.get("scenario"),
+            duration_s=round(span_s, 3),
+            topics=TourTopics(scan=tinfo.topics.scan, frames=tinfo.topics.frames,
+                              frames_kind=tinfo.topics.frames_kind, odometry=tinfo.topics.odometry,
+                              tf_static=tinfo.topics.tf_static),
+            frames=TourFrames(base=tinfo.base_frame, lidar=tinfo.lidar_frame, map="map"),
+            T_base_lidar=np.round(tinfo.T_base_lidar, 9).tolist(),
+            T_base_lidar_source=tinfo.T_base_lidar_source,
+            calibration=tinfo.calibration_source or None,
+        ),
+        messages=MessagesSummary(read=run.stream.read_stats.read, skipped=run.stream.read_stats.skipped,
+                                 odometry_out_of_order=(run.stream.odometry.out_of_order
+                                                        if run.stream.odometry is not None else 0)),
+        counts=CountsSummary(**run.counts, frames=run.frame_counts.get("frames", 0),
+                             bad_frames=run.frame_counts.get("bad_frames", 0)),
+        painting=PaintingSummary(
+            class_list=cfg.segmentation.class_list if class_names else None,
+            backend=cfg.segmentation.backend if class_names else None,
+            scans_painted=ps.painted,
+            readings_below_range_min_fraction=round(ps.below_range_min / max(ps.beams, 1), 4),
+            points_in_view_fraction=round(ps.points_in_view / max(ps.points_total, 1), 4),
+            occlusion_filter=OcclusionSummary(
+                on=cfg.paint.occlusion_filter,
+                points_relabelled=ps.occlusion_relabelled,
+                points_relabelled_per_painted_scan=round(ps.occlusion_relabelled / max(ps.painted, 1), 2),
+                points_relabelled_max_per_scan=ps.occlusion_max_per_scan,
+                scans_with_relabelled_points=ps.occlusion_scans,
+            ),
+            hits_by_mobility={m: int(v) for m, v in zip(("unknown", "static", "semi_static", "dynamic"),
+                                                       run.mobility_hits)},
+            hits_by_class={class_names[i]: int(v) for i, v in enumerate(run.class_hits) if v > 0},
+        ),
+        registration={"mode": cfg.registration.mode, **run.result.registration},
+        warnings=warnings,
+        map=MapSummary(
+            resolution=spec.resolution,
+            origin=[spec.origin_x, spec.origin_y, 0.0],
+            size_cells=[spec.width, spec.height],
+            size_m=[round(spec.width * spec.resolution, 2), round(spec.height * spec.resolution, 2)],
+            occupied_cells=int(cleaned.occupied.sum()),
+            free_cells=int(cleaned.free.sum()),
+            semi_static_cells=int(cleaned.semi_static.sum()),
+            dynamic_cells_removed=int(cleaned.dynamic_removed.sum()),
+            semi_static_objects=len(cleaned.objects),
+            semi_static_objects_by_class=by_class,
+        ),
+        timings_s=TimingsSummary(
+            read=round(t.read, 3), paint=round(t.paint, 3), hand_over=round(t.hand_over, 3),
+            wait_images=round(t.wait_images, 3), clean=round(t.clean, 3), write=0.0,
+            register_busy=round(run.result.register_busy_s, 3), fuse_busy=round(run.result.fuse_busy_s, 3),
+            loop=round(loop, 3), total=0.0,
+            segmentation_busy=round(run.frame_counts.get("segment_ms", 0) / 1000.0, 3), workers=cfg.workers),
+        cpu_s={**run.cpu_s, "total": round(sum(run.cpu_s.values()), 3),
+               "per_scan_ms": round(1000 * sum(run.cpu_s.values()) / n, 3) if n else None},
+        throughput=ThroughputSummary(
+            scans_per_s=round(n / loop, 1) if loop > 0 else None,
+            scans_per_s_end_to_end=None,  # the writer fills it in, at the end
+            real_time_factor=round(span_s / loop, 1) if loop > 0 and span_s > 0 else None,
+        ),
+        peak_rss_mb=0.0,  # the writer fills it in, at the end
+        peak_rss_mb_workers={**run.result.peak_rss_mb,
+                             **({"frames": run.frame_counts["peak_rss_mb"]}
+                                if "peak_rss_mb" in run.frame_counts else {})},
+        files=[],
+    )
+    return BuildOutcome(config=cfg, class_names=class_names, layers=layers, cleaned=cleaned, stamps_ns=stamps,
+                        poses=poses, odometry=odom, summary=summary, started=t_start)
 
 
 def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:
@@ -434,26 +425,26 @@ def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:
              cfg.registration.mode, cfg.segmentation.backend, cfg.sync.max_image_offset)
 
 
-def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, pipe: _Pipeline) -> None:
+def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
     """Say so when the camera labelled (almost) nothing, and why."""
-    ps = pipe.painter.stats
+    ps = run.painter.stats
     if cfg.paint.below_range_min == "invalid" and ps.below_range_min > 0.02 * max(ps.beams, 1):
         log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
                     "driver reports 'nothing seen' this way (Hokuyo URG does), set "
                     "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
     if tinfo.topics.frames is None:
         return
-    n = pipe.counts["scans"]
-    with_image = n - pipe.counts["scans_without_image"]
-    frames = pipe.frame_counts.get("frames", 0)
+    n = run.stream.counts.scans
+    with_image = n - run.scans_without_image
+    frames = run.frame_counts.get("frames", 0)
     log.info("%d of %d scans were paired with an image (%d frames read on %s); %.1f %% of their returns fell "
              "into the image", with_image, n, frames, tinfo.topics.frames,
              100 * ps.points_in_view / max(ps.points_paired, 1))
     if with_image < 0.1 * n:
         if frames == 0:
             why = f"no frame on {tinfo.topics.frames} could be read or segmented"
-        elif pipe.unpaired_offsets_ns:
-            off = float(np.median(pipe.unpaired_offsets_ns)) * 1e-9
+        elif run.stream.counts.unpaired_offsets_ns:
+            off = float(np.median(run.stream.counts.unpaired_offsets_ns)) * 1e-9
             why = (f"the nearest image was typically {off:.3f} s from a scan, more than sync.max_image_offset "
                    f"({cfg.sync.max_image_offset} s): are the camera's stamps on another clock, or is "
                    f"the camera much slower than the LiDAR?")

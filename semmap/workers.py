@@ -48,7 +48,7 @@ import time
 import traceback
 import types
 from array import array
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -60,6 +60,8 @@ from numpy.typing import NDArray
 from .config import GridConfig, RegistrationConfig, SegmentationConfig
 from .errors import InternalError, SemmapError, WorkerError
 from .records import Segmentation
+from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
+from .segment.frames import FrameReader, FrameSource, InProcessFrames
 
 __all__ = ["FrameSource", "Mapper", "InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
            "MapperResult", "signals_held"]
@@ -69,24 +71,6 @@ log = logging.getLogger(__name__)
 _PIPE_BYTES = 1 << 20  # scans in flight between the mapping stages (Linux; elsewhere the system's pipe size)
 _REPORT_S = 3.0  # after a failure, how long the other workers get to report theirs
 _EXIT_S = 2.0  # how long workers that sent their last message get to end on their own
-_STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
-
-
-def peak_rss_mb() -> float:
-    """This process's own peak resident memory, MB.
-
-    Linux's ``VmHWM``: ``ru_maxrss`` of a spawned worker starts at its parent's size when it was
-    forked, before the exec, and would report that instead of the worker's own peak."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except (OSError, ValueError, IndexError):
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024.0 if sys.platform != "darwin" else 1024.0 ** 2)
 
 
 def _send_large(conn: Connection, obj: Any) -> None:
@@ -114,20 +98,6 @@ def _recv_large(conn: Connection, cls: type, others: dict[str, Any], layout: dic
         a.setflags(write=False)
         arrays[name] = a
     return cls(**others, **arrays)
-
-
-@contextlib.contextmanager
-def signals_held() -> Iterator[None]:
-    """Hold SIGINT, SIGTERM and SIGHUP back while the block runs (clean-up, an atomic rename);
-    one that arrives meanwhile is delivered when the block ends."""
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 # ---------------------------------------------------------------------------------------
@@ -240,7 +210,7 @@ def _emit(name: str, level: int, text: str, process: str) -> None:
 def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, int], out: Connection,
                  body: Callable[..., None], *args: Any) -> None:
     """Every worker starts here: set the process up, run ``body(out, *args)``, report how it ended."""
-    for sig in _STOP_SIGNALS:  # Ctrl-C, a closed terminal, systemd reach the whole group: the parent stops us
+    for sig in STOP_SIGNALS:  # Ctrl-C, a closed terminal, systemd reach the whole group: the parent stops us
         signal.signal(sig, signal.SIG_IGN)
     _prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: die with the parent, however it ends
     if os.getppid() != parent_pid:  # the parent was already gone
@@ -450,93 +420,6 @@ class _Workers:
 # ---------------------------------------------------------------------------------------
 # Frames: decoding and segmentation
 
-_COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
-
-
-class FrameSource(Protocol):
-    """Segmentations of the camera topic, one per frame, in bag order."""
-
-    counts: dict[str, Any]
-
-    def wait_ready(self) -> None:
-        """Block until the segmenter is loaded (start-up is not counted as work)."""
-
-    def next(self) -> Segmentation | None:
-        """The next segmentation; None after the last."""
-
-    def release(self, seg: Segmentation) -> None:
-        """The caller no longer needs ``seg`` (its memory may be reused)."""
-
-    def close(self) -> None:
-        """Stop, and free what was held."""
-
-
-class _Frames:
-    """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
-    here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
-
-    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
-                 counts: dict[str, int]) -> None:
-        from .io.bag import iter_messages, open_bag
-        from .segment.base import create_segmenter
-
-        self._stack = contextlib.ExitStack()
-        segmenter = create_segmenter(seg_cfg)
-        self._stack.callback(segmenter.close)
-        try:
-            reader = self._stack.enter_context(open_bag(bag))
-        except BaseException:
-            self._stack.close()
-            raise
-        self._it = self._frames(iter_messages(bag, [topic], reader=reader), topic, msgtype, segmenter, counts)
-
-    @staticmethod
-    def _frames(messages: Iterator[tuple[str, int, Any]], topic: str, msgtype: str, segmenter: Any,
-                counts: dict[str, int]) -> Iterator[Segmentation]:
-        from .io.messages import compressed_image_from_msg, image_from_msg
-
-        for _, _, msg in messages:
-            t0 = time.perf_counter()
-            try:
-                img = compressed_image_from_msg(msg, topic) if msgtype == _COMPRESSED_T else image_from_msg(msg, topic)
-                seg = segmenter.segment(img)
-            except SemmapError as exc:  # a bad frame is skipped and counted
-                counts["bad_frames"] += 1
-                log.debug("skipped frame on %s: %s", topic, exc)
-                continue
-            counts["frames"] += 1
-            counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
-            yield seg
-
-    def __iter__(self) -> Iterator[Segmentation]:
-        return self._it
-
-    def close(self) -> None:
-        self._it.close()
-        self._stack.close()
-
-
-class InProcessFrames:
-    """Segmentations of a camera topic, decoded in this process, one at a time."""
-
-    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
-        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._source = _Frames(bag, topic, msgtype, seg_cfg, self.counts)
-        self._it = iter(self._source)
-
-    def next(self) -> Segmentation | None:
-        return next(self._it, None)
-
-    def wait_ready(self) -> None:
-        pass
-
-    def release(self, seg: Segmentation) -> None:
-        pass
-
-    def close(self) -> None:
-        self._source.close()
-
-
 def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any],
                  shm_name: str | None, shape: tuple[int, int] | None) -> None:
     """The frame worker: segment every frame of ``topic``; labels go into free shared-memory slots
@@ -545,7 +428,7 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgty
 
     counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
-    frames: _Frames | None = None
+    frames: FrameReader | None = None
     try:
         slots = None
         free: list[int] = []
@@ -553,7 +436,7 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgty
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
             free = list(range(n))
-        frames = _Frames(Path(bag), topic, msgtype, SegmentationConfig.model_validate(seg_cfg), counts)
+        frames = FrameReader(Path(bag), topic, msgtype, SegmentationConfig.model_validate(seg_cfg), counts)
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in frames:

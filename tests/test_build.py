@@ -73,7 +73,7 @@ def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map
     assert min(cpu["registration"], cpu["fusion"]) > 0
     assert cpu["total"] == pytest.approx(cpu["main"] + cpu["registration"] + cpu["fusion"], abs=0.01)
     assert cpu["per_scan_ms"] == pytest.approx(1000 * cpu["total"] / 418, rel=0.01)
-    assert set(single.summary["cpu_s"]) == {"main", "total", "per_scan_ms"}
+    assert set(single.summary.cpu_s) == {"main", "total", "per_scan_ms"}
 
 
 @pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
@@ -82,9 +82,9 @@ def test_ros2_tours_with_jpeg_images_and_mono8_labels(tmp_path, fmt):
     tour = simulate(world, tmp_path / "tour", fmt=fmt, seed=1,
                     config={"camera": {"image_format": "jpeg", "label_encoding": "mono8"}})
     res = build(tour.out, tmp_path / "map")
-    assert res.summary["tour"]["topics"]["frames"] == "/camera/labels"
-    assert res.summary["painting"]["hits_by_mobility"]["dynamic"] > 50
-    assert res.summary["painting"]["hits_by_class"]["person"] > 50
+    assert res.summary.tour.topics.frames == "/camera/labels"
+    assert res.summary.painting.hits_by_mobility["dynamic"] > 50
+    assert res.summary.painting.hits_by_class["person"] > 50
 
 
 def test_calibration_for_another_image_size_is_a_one_line_error(capsys, demo_tour, tmp_path):
@@ -127,8 +127,8 @@ def test_lidar_only_real_bag(data_dir, tmp_path, caplog):
     bag = data_dir / "leg_tracker" / "positive_3_extracted.bag"
     over = {"topics": {"scan": "/training_scan", "odometry": "none"}, "registration": {"mode": "icp"}}
     res = build(bag, tmp_path / "legs", overrides=over)
-    assert res.summary["counts"]["scans"] == 175
-    assert res.summary["tour"]["frames"]["base"] == "right_laser"
+    assert res.summary.counts.scans == 175
+    assert res.summary.tour.frames.base == "right_laser"
     assert "below range_min" in caplog.text  # the Hokuyo's "nothing seen" codes are pointed out
     _, poses = read_tum(res.out / "trajectory.tum")
     assert np.abs(poses[:, :2]).max() < 0.05  # the sensor did not move

@@ -32,10 +32,10 @@ def test_calibration_found_in_the_bag(tour, with_file, tmp_path):
     bare.mkdir()
     shutil.copy(tour.bag, bare / "demo.bag")
     res = build(bare / "demo.bag", tmp_path / "map", overrides={"workers": False})
-    src = res.summary["tour"]["calibration"]
+    src = res.summary.tour.calibration
     assert "/camera/camera_info" in src and "laser" in src and "camera_optical_frame" in src
-    assert res.summary["painting"]["scans_painted"] == with_file.summary["painting"]["scans_painted"]
-    assert res.summary["painting"]["hits_by_class"] == with_file.summary["painting"]["hits_by_class"]
+    assert res.summary.painting.scans_painted == with_file.summary.painting.scans_painted
+    assert res.summary.painting.hits_by_class == with_file.summary.painting.hits_by_class
 
 
 def test_no_calibration_anywhere_is_a_clear_error(tour, tmp_path):
@@ -56,17 +56,17 @@ def test_odometry_mode_without_odometry_is_an_error(tour, tmp_path):
 
 def test_a_tour_without_odometry_does_not_report_fused(tour, tmp_path):
     res = build(tour.out, tmp_path / "map", overrides={"topics": {"odometry": "none"}, "workers": False})
-    assert res.summary["registration"]["mode"] == "icp"
+    assert res.summary.registration["mode"] == "icp"
     written = yaml.safe_load((res.out / "config.yaml").read_text())
     assert written["registration"]["mode"] == "icp" and written["topics"]["odometry"] == "none"
 
 
 def test_scans_without_images_are_explained(tour, tmp_path, caplog):
     res = build(tour.out, tmp_path / "map", overrides={"sync": {"max_image_offset": 0.001}, "workers": False})
-    assert res.summary["painting"]["scans_painted"] < 0.1 * res.summary["counts"]["scans"]
+    assert res.summary.painting.scans_painted < 0.1 * res.summary.counts.scans
     msg = next(r.getMessage() for r in caplog.records if "paired with an image" in r.getMessage())
     assert "sync.max_image_offset (0.001 s)" in msg and "nearest image was typically" in msg
-    assert any("paired with an image" in w for w in res.summary["warnings"])
+    assert any("paired with an image" in w for w in res.summary.warnings)
 
 
 def test_a_calibration_into_the_camera_body_frame_is_explained(tour, tmp_path, caplog):
@@ -81,7 +81,7 @@ def test_a_calibration_into_the_camera_body_frame_is_explained(tour, tmp_path, c
     path = tmp_path / "body.yaml"
     path.write_text(yaml.safe_dump(calib))
     res = build(tour.out, tmp_path / "map", calibration=path, overrides={"workers": False})
-    assert res.summary["painting"]["scans_painted"] == 0
+    assert res.summary.painting.scans_painted == 0
     msg = next(r.getMessage() for r in caplog.records if "fell into the camera images" in r.getMessage())
     assert "behind the camera" in msg and "optical frame" in msg and "body.yaml" in msg
 
@@ -159,5 +159,5 @@ def test_a_sweep_whose_middle_comes_after_the_next_scans_is_skipped_not_a_crash(
             w.scan("/scan", stamp, Scan(stamp, "laser", -np.pi / 2, np.pi / (n - 1), ranges.astype(np.float32),
                                         0.05, 10.0, sweep / n, 0.1))
     res = build(bag, tmp_path / "map", overrides={"workers": False, "topics": {"odometry": "none"}})
-    assert res.summary["counts"]["scans_out_of_order"] >= 1
-    assert res.summary["counts"]["scans"] + res.summary["counts"]["scans_out_of_order"] == 60
+    assert res.summary.counts.scans_out_of_order >= 1
+    assert res.summary.counts.scans + res.summary.counts.scans_out_of_order == 60

@@ -60,7 +60,7 @@ def _capture(ps, labels):
 
 def test_points_take_the_class_and_mobility_of_their_mask():
     t_base_lidar, calib, frame, scan, owner = _capture(*_world())
-    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO))
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO)).painted
     person, chair_, walls = owner == 4, owner == 3, (owner >= 0) & (owner <= 2)
     assert person.sum() >= 4 and chair_.sum() >= 2
     assert np.all(painted.mobility[person] == Mobility.DYNAMIC)
@@ -97,8 +97,8 @@ def _turning(omega, t_scan, t_img):
 def test_motion_compensation_brings_the_scan_to_the_image_time():
     # turning at 60 deg/s, the image is 80 ms after the scan: 4.8 deg, a person-width at 3 m
     scan, seg, odom, person, t_base_lidar, calib = _turning(math.radians(60), 0.0, 0.08)
-    with_mc = _painter(t_base_lidar, calib).paint(scan, odom, seg)
-    without = _painter(t_base_lidar, calib, motion_compensation=False).paint(scan, odom, seg)
+    with_mc = _painter(t_base_lidar, calib).paint(scan, odom, seg).painted
+    without = _painter(t_base_lidar, calib, motion_compensation=False).paint(scan, odom, seg).painted
     right = lambda p: np.mean(p.mobility[person] == Mobility.DYNAMIC)  # noqa: E731
     assert right(with_mc) == 1.0
     assert right(without) < 0.5
@@ -115,8 +115,8 @@ def test_deskew_undoes_motion_during_the_sweep():
     for t in np.arange(-0.2, 0.4, 0.02):
         odom.add(int(round(t * 1e9)), np.array([0.0, 0.0, omega * t]))
     scan = _scan(lidar, sweep.ranges, 0, lcfg)
-    painted = _painter(t_base_lidar, calib).paint(scan, odom, None)
-    raw = _painter(t_base_lidar, calib, deskew=False).paint(scan, odom, None)
+    painted = _painter(t_base_lidar, calib).paint(scan, odom, None).painted
+    raw = _painter(t_base_lidar, calib, deskew=False).paint(scan, odom, None).painted
     # the wall at x = 5.94 is straight once deskewed; the raw sweep bends it (seen from the reference pose)
     ref_yaw = omega * (painted.stamp_ns * 1e-9)
     c, s = math.cos(ref_yaw), math.sin(ref_yaw)
@@ -138,7 +138,7 @@ def test_invalid_ranges_clear_nothing_and_no_return_clears_to_the_limit():
     r[10:20] = np.inf
     r[20:30] = 0.0  # Hokuyo-style invalid
     r[30:40] = -np.inf
-    painted = _painter(t_base_lidar, calib).paint(_scan(lidar, r, 0, lcfg), None, None)
+    painted = _painter(t_base_lidar, calib).paint(_scan(lidar, r, 0, lcfg), None, None).painted
     d = np.hypot(*(painted.points - painted.origin).T)
     assert not painted.hit[:40].any() and painted.hit[40:].all()
     assert np.allclose(d[:10], 0) and np.allclose(d[20:40], 0)
@@ -168,9 +168,9 @@ def test_fast_pinhole_projection_agrees_with_opencv():
     frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
     scan = _scan(lidar, sweep.ranges, 0, lcfg)
     seg = Segmentation(0, frame.label, COCO)
-    fast = _painter(t_base_lidar, calib).paint(scan, None, seg)
+    fast = _painter(t_base_lidar, calib).paint(scan, None, seg).painted
     tiny = Calibration(CameraIntrinsics(640, 480, calib.intrinsics.K, [0, 0, 0, 0, 1e-12]), calib.T_cam_lidar)
-    slow = _painter(t_base_lidar, tiny).paint(scan, None, seg)
+    slow = _painter(t_base_lidar, tiny).paint(scan, None, seg).painted
     assert not _painter(t_base_lidar, tiny)._pinhole_no_distortion
     assert np.array_equal(fast.mobility, slow.mobility) and np.array_equal(fast.class_id, slow.class_id)
 
@@ -191,7 +191,7 @@ def test_fisheye_camera_paints_like_opencv_projects():
     label = np.tile((np.arange(640) // 10 + 1).astype(np.uint16), (480, 1))
     names = tuple(["chair"] * 64)
     painted = Painter(t_base_lidar, calib, names, load_class_table(), PaintConfig(), SyncConfig(), 10.0).paint(
-        scan, None, Segmentation(0, label, names))
+        scan, None, Segmentation(0, label, names)).painted
     seen = painted.mobility != Mobility.UNKNOWN
     assert seen.sum() > 50
     pts = np.column_stack([ranges * np.cos(lidar.angles), ranges * np.sin(lidar.angles), np.zeros_like(ranges)])
@@ -217,12 +217,12 @@ def test_furniture_points_name_the_object_the_camera_saw_them_on():
     a, b = owner == 3, owner == 4
     assert a.sum() >= 2 and b.sum() >= 2
 
-    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO))
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO)).painted
     ka, kb = np.unique(painted.instance[a]), np.unique(painted.instance[b])
     assert ka.size == 1 and kb.size == 1 and ka[0] != kb[0]
     assert min(ka[0], kb[0]) >= REGION_BASE  # regions: they may join objects, never tell them apart
     assert np.all(painted.instance[~(a | b)] == -1)  # walls are not furniture
 
     instance = np.where(frame.label > 0, frame.owner + 1, 0).astype(np.uint16)
-    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO, instance=instance))
+    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO, instance=instance)).painted
     assert set(painted.instance[a]) == {4} and set(painted.instance[b]) == {5}

@@ -272,7 +272,7 @@ def test_the_painter_labels_exactly_the_returns_that_land_in_the_image(calib, se
     names = tuple(["chair"] * bands)
     painter = Painter(np.eye(4), calib, names, load_class_table(), PaintConfig(occlusion_filter=False),
                       SyncConfig(), 10.0)
-    painted = painter.paint(scan, None, Segmentation(0, label, names))
+    painted = painter.paint(scan, None, Segmentation(0, label, names)).painted
 
     hit = np.isfinite(ranges) & (ranges >= 0.1)
     pts = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles), np.zeros(n)])

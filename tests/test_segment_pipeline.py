@@ -133,8 +133,8 @@ def test_segment_a_bag_then_build_from_the_label_folder(ros1_tour, tmp_path, cap
     folder = build(ros1_tour.out, tmp_path / "map_folder",
                    overrides={"workers": False, "segmentation": {"backend": "folder", "folder": str(out / "labels")}})
     # the folder backend reads the camera topic's stamps: the same frames, the same painting
-    assert folder.summary["painting"]["scans_painted"] == ref.summary["painting"]["scans_painted"] > 0
-    assert folder.summary["painting"]["hits_by_class"] == ref.summary["painting"]["hits_by_class"]
+    assert folder.summary.painting.scans_painted == ref.summary.painting.scans_painted > 0
+    assert folder.summary.painting.hits_by_class == ref.summary.painting.hits_by_class
 
 
 def test_segment_limit_counts_every_image_tried_and_repeated_warnings_are_counted(ros1_tour, tmp_path, caplog):
@@ -168,14 +168,14 @@ def test_build_runs_a_model_backend_in_its_worker_and_a_rebuild_uses_the_cache(r
     seg = {"backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(cache)}
     first = build(ros1_tour.out, tmp_path / "m1", overrides={"segmentation": seg})
     entries = sorted(cache.glob("onnx-*/*.npz"))
-    assert first.summary["counts"]["frames"] == len(entries) == 40
-    assert first.summary["painting"]["backend"] == "onnx"
-    assert first.summary["cpu_s"]["frames"] > 0  # the model ran in the frame worker
-    assert set(first.summary["painting"]["hits_by_class"]) <= {"person", "chair"}
+    assert first.summary.counts.frames == len(entries) == 40
+    assert first.summary.painting.backend == "onnx"
+    assert first.summary.cpu_s["frames"] > 0  # the model ran in the frame worker
+    assert set(first.summary.painting.hits_by_class) <= {"person", "chair"}
     mtimes = [p.stat().st_mtime_ns for p in entries]
     second = build(ros1_tour.out, tmp_path / "m2", overrides={"segmentation": seg})
     assert [p.stat().st_mtime_ns for p in sorted(cache.glob("onnx-*/*.npz"))] == mtimes  # nothing segmented again
-    assert second.summary["painting"]["hits_by_class"] == first.summary["painting"]["hits_by_class"]
+    assert second.summary.painting.hits_by_class == first.summary.painting.hits_by_class
 
 
 # ---------------------------------------------------------------------------------------

@@ -53,7 +53,7 @@ BUILD_CHILD = r"""
 import json, sys
 from semmap.pipeline import build
 r = build(sys.argv[1], sys.argv[2], overrides=json.loads(sys.argv[3]), force=True)
-s = r.summary
+s = r.summary.model_dump(mode="json")
 print(json.dumps({"loop_s": s["timings_s"]["loop"], "total_s": s["timings_s"]["total"],
                   "scans": s["counts"]["scans"], "frames": s["counts"].get("frames", 0),
                   "segmentation_busy_s": s["timings_s"]["segmentation_busy"],

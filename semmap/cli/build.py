@@ -59,7 +59,7 @@ def _build(args: argparse.Namespace, tour: Path):  # noqa: ANN202
 def _print_summary(result) -> None:  # noqa: ANN001
     from ..mapfolder.report import registration_line
 
-    s = result.summary
+    s = result.summary.model_dump(mode="json")
     m, th = s["map"], s["throughput"]
     out = console()
     out.print(f"[bold]semmap build[/bold]: {s['tour']['bag']} → {result.out}")

@@ -15,9 +15,9 @@ import threading
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from .. import __version__
 from ..errors import InternalError, Interrupted, SemmapError
 from ..io.atomic import COMMITTED
+from ..version import __version__
 from . import build as build_cmd
 from . import calibrate as calibrate_cmd
 from . import evalseg as evalseg_cmd

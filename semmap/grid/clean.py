@@ -57,7 +57,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -68,7 +68,7 @@ from ..config import CleaningConfig
 from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
-__all__ = ["CleanedMap", "SemiStaticObject", "clean", "group_cells", "nearest_value"]
+__all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "group_cells", "nearest_value"]
 
 log = logging.getLogger(__name__)
 
@@ -907,3 +907,24 @@ def _box(cname: str, pts: NDArray[np.float64], res: float, views: int) -> SemiSt
     return SemiStaticObject(cname, (float(pts[:, 0].mean()), float(pts[:, 1].mean())), (float(w), float(h)),
                             float(yaw), int(pts.shape[0]), views,
                             tuple((round(float(x), 3) + 0.0, round(float(y), 3) + 0.0) for x, y in corners))  # no -0.0
+
+
+def crop_to_observed(layers: GridLayers, cleaned: CleanedMap, margin_m: float) -> tuple[GridLayers, CleanedMap]:
+    """Cut the grid down to the observed cells plus a margin (the fusion window grows in big steps)."""
+    rows, cols = np.nonzero(~cleaned.unknown)
+    if rows.size == 0:
+        return layers, cleaned
+    m = int(np.ceil(margin_m / layers.spec.resolution))
+    h, w = layers.spec.shape
+    r0, r1 = max(int(rows.min()) - m, 0), min(int(rows.max()) + 1 + m, h)
+    c0, c1 = max(int(cols.min()) - m, 0), min(int(cols.max()) + 1 + m, w)
+    spec = layers.spec.crop(r0, r1, c0, c1)
+    win = (slice(r0, r1), slice(c0, c1))
+    layers = replace(layers, spec=spec, log_odds=layers.log_odds[win], hits=layers.hits[win], free=layers.free[win],
+                     mobility=layers.mobility[(slice(None), *win)],
+                     class_counts=layers.class_counts[(slice(None), *win)],
+                     sightings=crop_sightings(layers.sightings, r0, r1, c0, c1))
+    cleaned = replace(cleaned, spec=spec, occupied=cleaned.occupied[win], free=cleaned.free[win],
+                      unknown=cleaned.unknown[win], semi_static=cleaned.semi_static[win],
+                      dynamic_removed=cleaned.dynamic_removed[win])
+    return layers, cleaned

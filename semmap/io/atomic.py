@@ -129,7 +129,7 @@ def atomic_dir(out: str | Path, force: bool = False, marker: str | None = None,
     complete. On any exception, including Ctrl-C and SIGTERM raised as exceptions, the hidden
     folder is removed and ``out`` is left as it was.
     """
-    from ..workers import signals_held
+    from ..runtime import signals_held
 
     out = Path(out).expanduser()
     check_output(out, force, marker, inputs, what)
@@ -176,7 +176,7 @@ def atomic_dir(out: str | Path, force: bool = False, marker: str | None = None,
 def atomic_file(out: str | Path, force: bool = False, inputs: Sequence[str | Path] = (),
                 what: str = "file") -> Iterator[Path]:
     """Yield a hidden path beside the file ``out``; rename it to ``out`` when the block succeeds."""
-    from ..workers import signals_held
+    from ..runtime import signals_held
 
     out = check_output_file(out, force, inputs, what)
     try:

@@ -19,7 +19,7 @@ from ..records import Mobility  # noqa: E402
 
 if TYPE_CHECKING:
     from ..grid import CleanedMap, GridLayers
-    from ..pipeline import _Pipeline
+    from .writer import BuildOutcome
 
 __all__ = ["render_pictures", "write_report", "semantic_image"]
 
@@ -70,14 +70,15 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
 _OUTLINE = "#333333"  # the outline of a movable object's footprint
 
 
-def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _Pipeline) -> dict[str, str]:
+def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
     """Draw semantic.png, report/trajectory.png and report/classes.png; return their relative paths."""
     (out / "report").mkdir(exist_ok=True)
+    cleaned, layers, class_names = outcome.cleaned, outcome.layers, outcome.class_names
     spec = cleaned.spec
     extent = (spec.origin_x, spec.origin_x + spec.width * spec.resolution,
               spec.origin_y, spec.origin_y + spec.height * spec.resolution)
-    poses = np.asarray(pipe.trace.poses).reshape(-1, 3)
-    img, legend = semantic_image(cleaned, layers, pipe.class_names)
+    poses = np.asarray(outcome.poses).reshape(-1, 3)
+    img, legend = semantic_image(cleaned, layers, class_names)
     w_m, h_m = extent[1] - extent[0], extent[3] - extent[2]
     fig_w = 11.0
     fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.0, 3.5, 12.0))
@@ -111,8 +112,9 @@ def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _P
     fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
     ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
               cmap="gray", vmin=0, vmax=1, interpolation="nearest")
-    ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=1.4, label=f"estimate ({pipe.cfg.registration.mode})")
-    odom = pipe.trace.odom
+    ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=1.4,
+            label=f"estimate ({outcome.config.registration.mode})")
+    odom = outcome.odometry
     have = np.flatnonzero(np.isfinite(odom[:, 0]))
     if have.size:
         i0 = int(have[0])
@@ -131,13 +133,16 @@ def render_pictures(out: Path, cleaned: CleanedMap, layers: GridLayers, pipe: _P
     # painted hits by class and by mobility
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6), dpi=100, gridspec_kw={"width_ratios": [1, 2]})
     names = ["unknown", "static", "semi_static", "dynamic"]
-    a1.bar(names, pipe.mobility_hits, color=[np.array(MOBILITY_COLORS[Mobility(i)]) / 255 for i in range(4)])
+    painting = outcome.summary.painting
+    mobility_hits = np.array([painting.hits_by_mobility.get(k, 0) for k in names], np.int64)
+    class_hits = np.array([painting.hits_by_class.get(k, 0) for k in class_names], np.int64)
+    a1.bar(names, mobility_hits, color=[np.array(MOBILITY_COLORS[Mobility(i)]) / 255 for i in range(4)])
     a1.set_title("LiDAR hits by mobility", fontsize=9)
     a1.tick_params(axis="x", labelrotation=30, labelsize=8)
-    idx = [i for i in np.argsort(pipe.class_hits)[::-1] if pipe.class_hits[i] > 0][:15]
+    idx = [i for i in np.argsort(class_hits)[::-1] if class_hits[i] > 0][:15]
     if idx:
-        a2.barh([pipe.class_names[i] for i in idx][::-1], [pipe.class_hits[i] for i in idx][::-1],
-                color=[np.array(class_color(pipe.class_names[i])) / 255 for i in idx][::-1])
+        a2.barh([class_names[i] for i in idx][::-1], [class_hits[i] for i in idx][::-1],
+                color=[np.array(class_color(class_names[i])) / 255 for i in idx][::-1])
     a2.set_title("LiDAR hits painted with an object class" if idx else "no object classes painted", fontsize=9)
     a2.set_xscale("log" if idx else "linear")
     fig.tight_layout()

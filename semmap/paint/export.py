@@ -14,7 +14,6 @@ beam within ``sync.max_image_offset``.
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +26,9 @@ from ..classes import load_class_table
 from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError
 from ..records import Mobility, PaintedScan, Scan, Segmentation
+from ..segment.frames import InProcessFrames
 from .painter import CameraView, Painter
+from .stream import ScanStream, open_build_tour, tour_class_names
 
 __all__ = ["PaintedPair", "PaintExport", "iter_painted", "export_painted", "EXPORT_COLUMNS"]
 
@@ -73,21 +74,6 @@ class PaintExport:
     class_names: tuple[str, ...] = field(default_factory=tuple)
 
 
-def _load(tour: str | Path, config: str | Path | BuildConfig | None, calibration: str | Path | None,
-          overrides: dict[str, Any] | None) -> tuple[Any, BuildConfig, tuple[str, ...]]:
-    from ..pipeline import open_build_tour
-    from ..segment.base import create_segmenter
-
-    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
-    if tinfo.topics.frames is None:
-        raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
-                       f"or topics.labels")
-    probe = create_segmenter(cfg.segmentation)
-    names = probe.names
-    probe.close()
-    return tinfo, cfg, tuple(names)
-
-
 def iter_painted(
     tour: str | Path,
     config: str | Path | BuildConfig | None = None,
@@ -97,56 +83,29 @@ def iter_painted(
 ) -> Iterator[PaintedPair]:
     """Paint every scan of ``tour`` with and without the occlusion filter, in scan order.
 
-    Scans are paired with images and odometry by the same streaming core as ``semmap build``.
-    The filter's parameters come from the config (``paint.occlusion_*``); the filtered
-    painting uses them even where the config switches the filter off.
+    Scans are paired with images and odometry by the same scan stream as ``semmap build``
+    (:class:`~semmap.paint.stream.ScanStream`). The filter's parameters come from the config
+    (``paint.occlusion_*``); the filtered painting uses them even where the config switches the
+    filter off.
     """
-    from ..io.bag import iter_messages, message_count
-    from ..pipeline import _Pipeline
-    from ..workers import InProcessFrames
-
-    tinfo, cfg, names = _load(tour, config, calibration, overrides)
-    on = cfg.model_copy(update={"paint": cfg.paint.model_copy(update={"occlusion_filter": True})})
-
-    class _Pairs(_Pipeline):
-        """The build's core, painting each scan twice and keeping the pairs instead of mapping."""
-
-        def __init__(self, frames: InProcessFrames) -> None:
-            super().__init__(tinfo, on, names, frames, mapper=None)
-            off = cfg.paint.model_copy(update={"occlusion_filter": False})
-            self.raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names,
-                                       load_class_table(cfg.segmentation.classes_file), off, cfg.sync,
-                                       cfg.grid.no_return_range)
-            self.out: deque[PaintedPair] = deque()
-
-        def _handle(self, scan: Scan, seg: Segmentation | None, t0: float) -> None:
-            raw = self.raw_painter.paint(scan, self.odom, seg)
-            filtered = self.painter.paint(scan, self.odom, seg)
-            self.out.append(PaintedPair(scan, raw, filtered, self.painter.last_view, seg))
-
+    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
+    if tinfo.topics.frames is None:
+        raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
+                       f"or topics.labels")
+    names = tour_class_names(tinfo, cfg)
+    table = load_class_table(cfg.segmentation.classes_file)
+    on = cfg.paint.model_copy(update={"occlusion_filter": True})
+    off = cfg.paint.model_copy(update={"occlusion_filter": False})
+    painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range)
+    raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
+                          cfg.grid.no_return_range)
     frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, tinfo.types.get(tinfo.topics.frames, ""),
                              cfg.segmentation)
     try:
-        pipe = _Pairs(frames)
-        topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
-        total = message_count(tinfo.bag, tinfo.topics.scan)
-        done = 0
-        for topic, t_bag, msg in iter_messages(tinfo.bag, topics):
-            if topic == tinfo.topics.scan:
-                pipe.on_scan(t_bag, msg)
-                done += 1
-                if progress is not None and done % 50 == 0:
-                    progress(done, total)
-            else:
-                pipe.on_odometry(msg)
-            pipe.process_ready(t_bag)
-            while pipe.out:
-                yield pipe.out.popleft()
-        pipe.flush()
-        while pipe.out:
-            yield pipe.out.popleft()
-        if progress is not None:
-            progress(total, total)
+        for item in ScanStream(tinfo, cfg.sync, frames, progress):
+            raw = raw_painter.paint(item.scan, item.odometry, item.segmentation)
+            filtered = painter.paint(item.scan, item.odometry, item.segmentation)
+            yield PaintedPair(item.scan, raw.painted, filtered.painted, filtered.view, item.segmentation)
     finally:
         frames.close()
 

@@ -114,7 +114,8 @@ def camera_image(tour: str | Path, stamp_ns: int, config: str | Path | BuildConf
     Grey images come back as three equal channels.
     """
     from ..io.bag import iter_messages
-    from ..io.messages import compressed_image_from_msg, image_from_msg, stamp_ns as header_stamp
+    from ..io.messages import compressed_image_from_msg, image_from_msg
+    from ..io.messages import stamp_ns as header_stamp
     from ..io.tour import COMPRESSED_T, load_build_config, open_tour
 
     try:

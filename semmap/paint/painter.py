@@ -41,7 +41,7 @@ from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
 from .occlusion import OcclusionParams, hidden_points, mask_regions
 
-__all__ = ["Painter", "PaintStats", "CameraView"]
+__all__ = ["Painter", "PaintResult", "PaintStats", "CameraView"]
 
 
 @dataclass
@@ -76,6 +76,20 @@ class CameraView:
     uv: NDArray[np.float64]
     label: NDArray[np.intp]
     hidden: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class PaintResult:
+    """One painted scan, and what the painter found on the way.
+
+    ``odom_pose`` is the odometry pose (x, y, yaw in the odometry frame) at the scan's reference time
+    (None when the odometry does not cover it); ``view`` how the scan's points fell into the camera
+    (None when it was not painted).
+    """
+
+    painted: PaintedScan
+    odom_pose: NDArray[np.float64] | None
+    view: CameraView | None
 
 
 @dataclass(frozen=True)
@@ -151,10 +165,6 @@ class Painter:
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
         self._layout_cache: _Layout | None = None
-        #: the odometry pose at the last painted scan's reference time (None if not covered)
-        self.last_odom_pose: NDArray[np.float64] | None = None
-        #: the last scan's projection into the camera (None when it was not painted)
-        self.last_view: CameraView | None = None
         self._occlusion = OcclusionParams.from_config(paint_cfg) if paint_cfg.occlusion_filter else None
         # per label value, the most an object of that class spans (inf: structure, or no typical size)
         self._extent: NDArray[np.float64] | None = None
@@ -198,8 +208,9 @@ class Painter:
         """The time a painted scan's points are expressed at: its middle beam's."""
         return scan.stamp_ns + cls.beam_step_ns(scan) * (scan.ranges.size // 2)
 
-    def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintedScan:
-        """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None)."""
+    def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintResult:
+        """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None), ``odom``
+        the odometry covering the scan's sweep and the image's time (or None)."""
         n = scan.ranges.size
         layout = self._layout(scan)
         pts_base, hit, ranges = self._beams(scan, layout)  # (N, 3) at each beam's own time
@@ -210,16 +221,15 @@ class Painter:
 
         xy = pts_base[:, :2]
         poses = None
+        odom_pose: NDArray[np.float64] | None = None
         if odom is not None:
             poses = odom.interpolate(np.array([scan.stamp_ns, t_ref, scan.stamp_ns + dt_ns * max(n - 1, 0)],
                                               dtype=np.int64))
             if poses is None:  # the sweep's ends may not be covered; the reference alone may be
                 ref = odom.interpolate(t_ref)
-                self.last_odom_pose = None if ref is None else np.asarray(ref)
+                odom_pose = None if ref is None else np.asarray(ref)
             else:
-                self.last_odom_pose = poses[1].copy()
-        else:
-            self.last_odom_pose = None
+                odom_pose = poses[1].copy()
         if self.sync_cfg.deskew and dt_ns and n > 2 and poses is not None:
             # the base pose at each beam's time, seen from the reference (middle) beam: the sweep
             # lasts tens of ms, so the motion is interpolated linearly from its two ends (the
@@ -237,11 +247,12 @@ class Painter:
         mobility = np.zeros(n, np.uint8)
         class_id = np.full(n, -1, np.int16)
         instance = np.full(n, -1, np.int32)
-        self.last_view = None
+        view = None
         if seg is not None and self.calib is not None:
             footprint = np.abs(ranges * scan.angle_increment)
-            self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id, instance)
-        return PaintedScan(
+            view = self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id,
+                                      instance)
+        painted = PaintedScan(
             stamp_ns=t_ref,
             origin=origin,
             points=xy,
@@ -252,11 +263,13 @@ class Painter:
             class_names=self.class_names,
             frame_id=scan.frame_id,
         )
+        return PaintResult(painted, odom_pose, view)
 
     def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_],
                       footprint: NDArray[np.float64], t_ref: int,
                       odom: OdomTrack | None, seg: Segmentation, mobility: NDArray[np.uint8],
-                      class_id: NDArray[np.int16], instance: NDArray[np.int32]) -> None:
+                      class_id: NDArray[np.int16], instance: NDArray[np.int32]) -> CameraView | None:
+        """Label the points the camera saw (in place); how they fell into the image (None: none did)."""
         assert self.calib is not None
         intr = self.calib.intrinsics
         if seg.label.shape != (intr.height, intr.width):
@@ -280,7 +293,7 @@ class Painter:
         self.stats.paired += 1
         self.stats.points_paired += sel.size
         if sel.size == 0:
-            return
+            return None
         xy_sel = xy[sel]
         p_cam = xy_sel @ T_cam[:3, :2].T + (z[sel, None] * T_cam[None, :3, 2] + T_cam[None, :3, 3])
         zc = p_cam[:, 2]
@@ -310,7 +323,7 @@ class Painter:
         else:
             seen = ahead & np.isfinite(uv).all(axis=1)
         if not ok.any():
-            return
+            return None
         px = np.rint(np.where(seen[:, None], uv, 0.0)).astype(np.intp)
         np.maximum(px, 0, out=px)
         np.minimum(px, self._px_max, out=px)
@@ -346,7 +359,7 @@ class Painter:
             else:
                 key = mask_regions(seg.label, pix, labels[semi])
             instance[idx[semi]] = key
-        self.last_view = CameraView(seg.stamp_ns, idx, uv[ok], labels, hidden)
         self.stats.painted += 1
         self.stats.points_in_view += int(ok.sum())
         self.stats.points_total += int(hit.sum())
+        return CameraView(seg.stamp_ns, idx, uv[ok], labels, hidden)

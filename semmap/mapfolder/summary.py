@@ -1,0 +1,147 @@
+"""``summary.json``: the numbers of one build, typed.
+
+:class:`BuildSummary` is written by :func:`semmap.mapfolder.writer.write_map_folder` and read back by
+:func:`semmap.load_map`. Its JSON keys are the field names below, in this order.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+__all__ = ["BuildSummary", "TourSummary", "TourTopics", "TourFrames", "MessagesSummary", "CountsSummary",
+           "PaintingSummary", "OcclusionSummary", "MapSummary", "TimingsSummary", "ThroughputSummary"]
+
+
+class _Part(BaseModel):
+    # extra keys are ignored on reading: a folder of the same map_folder_version may carry more
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+
+class TourTopics(_Part):
+    scan: str
+    frames: str | None
+    frames_kind: str | None
+    odometry: str | None
+    tf_static: str | None
+
+
+class TourFrames(_Part):
+    base: str
+    lidar: str
+    map: str = "map"
+
+
+class TourSummary(_Part):
+    """Where the data came from, and what was found in it."""
+
+    bag: str
+    scenario: str | None
+    duration_s: float
+    topics: TourTopics
+    frames: TourFrames
+    T_base_lidar: list[list[float]]
+    T_base_lidar_source: str
+    calibration: str | None
+
+
+class MessagesSummary(_Part):
+    read: dict[str, int]  # messages read, per topic
+    skipped: dict[str, int]  # messages that could not be read, per topic
+    odometry_out_of_order: int
+
+
+class CountsSummary(_Part):
+    scans: int  # scans painted and mapped
+    scans_without_image: int
+    scans_without_odometry: int
+    odometry: int  # odometry messages
+    bad_scans: int  # no beams, or no angle increment
+    scans_out_of_order: int  # repeated or backwards stamps
+    frames: int  # camera images segmented
+    bad_frames: int  # camera images that could not be read or segmented
+
+
+class OcclusionSummary(_Part):
+    on: bool
+    points_relabelled: int
+    points_relabelled_per_painted_scan: float
+    points_relabelled_max_per_scan: int
+    scans_with_relabelled_points: int
+
+
+class PaintingSummary(_Part):
+    class_list: str | None
+    backend: str | None
+    scans_painted: int
+    readings_below_range_min_fraction: float
+    points_in_view_fraction: float
+    occlusion_filter: OcclusionSummary
+    hits_by_mobility: dict[str, int]
+    hits_by_class: dict[str, int]
+
+
+class MapSummary(_Part):
+    resolution: float
+    origin: list[float]
+    size_cells: list[int]
+    size_m: list[float]
+    occupied_cells: int
+    free_cells: int
+    semi_static_cells: int
+    dynamic_cells_removed: int
+    semi_static_objects: int
+    semi_static_objects_by_class: dict[str, int]
+
+
+class TimingsSummary(_Part):
+    """Wall time of each step, s (``*_busy``: the worker's own working time beside the loop)."""
+
+    read: float
+    paint: float
+    hand_over: float
+    wait_images: float = 0.0
+    clean: float
+    write: float
+    register_busy: float
+    fuse_busy: float
+    loop: float
+    total: float
+    segmentation_busy: float
+    workers: bool
+
+
+class ThroughputSummary(_Part):
+    scans_per_s: float | None
+    scans_per_s_end_to_end: float | None
+    real_time_factor: float | None
+
+
+class BuildSummary(_Part):
+    """What one ``semmap build`` read, did and wrote."""
+
+    semmap_version: str
+    map_folder_version: int
+    created_unix_s: float
+    machine: str
+    tour: TourSummary
+    messages: MessagesSummary
+    counts: CountsSummary
+    painting: PaintingSummary
+    registration: dict[str, Any]  # "mode", then the registrar's counters (they depend on the mode)
+    warnings: list[str]
+    map: MapSummary
+    timings_s: TimingsSummary
+    #: CPU time of the streaming loop per process, s; on a machine with fewer cores than busy processes
+    #: their sum, not the busiest one, bounds the speed
+    cpu_s: dict[str, float | None]
+    throughput: ThroughputSummary
+    peak_rss_mb: float
+    peak_rss_mb_workers: dict[str, float]
+    files: list[str]
+
+    def to_json(self) -> str:
+        """The text of ``summary.json`` (Python's JSON float formatting, as every earlier folder)."""
+        return json.dumps(self.model_dump(mode="json"), indent=2)

@@ -1,0 +1,235 @@
+"""The scan stream: every LiDAR scan of a tour, paired with the camera's segmentation and the odometry
+around it, in scan order, one at a time.
+
+This is the streaming core that ``semmap build`` and ``semmap paint`` share::
+
+    from semmap.paint.stream import ScanStream
+
+    for item in ScanStream(tour, cfg.sync, frames):
+        result = painter.paint(item.scan, item.odometry, item.segmentation)
+
+It buffers just enough to pair each scan:
+
+* A scan waits until the odometry reaches past its sweep and the latest image it may be paired
+  with (deskewing and motion compensation interpolate there), or until it has waited
+  ``sync.max_wait_s`` of bag time or ``sync.max_wait_scans`` scans: odometry that stops or never
+  comes does not hold the tour back.
+* Its segmentation is the one of the image nearest the scan's middle beam, within
+  ``sync.max_image_offset``; segmentations are pulled from the :class:`FrameSource` only as far as
+  that needs, and handed back once the pairing window has passed them by
+  ``sync.keep_images_s``.
+* Odometry older than ``sync.keep_odometry_s`` before the scan is forgotten once it is yielded.
+
+Scans with no beams, or an angle increment of 0 or NaN, are skipped and counted
+(``counts.bad_scans``); so are scans whose stamp or middle beam is not after the last one's
+(``counts.scans_out_of_order``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import BuildConfig, SyncConfig, merge_overrides
+from ..errors import BagError
+from ..io.bag import ReadStats, iter_messages, message_count, open_bag
+from ..io.messages import odometry_from_msg, scan_from_msg
+from ..io.tour import Tour, load_build_config, open_tour
+from ..records import Scan, Segmentation
+from ..segment.base import backend_consumes
+from ..segment.frames import FrameSource
+from .motion import OdomTrack
+from .painter import Painter
+
+__all__ = ["ScanStream", "PairedScan", "StreamCounts", "open_build_tour", "tour_class_names"]
+
+ProgressFn = Callable[[int, int], None]
+
+#: scans with no image close enough: the nearest image's offsets kept for the warning at the end (at most)
+_MAX_OFFSETS_KEPT = 4096
+
+
+@dataclass(frozen=True)
+class PairedScan:
+    """One scan and what it is painted with.
+
+    ``segmentation``: the paired image's segmentation (None: no image within
+    ``sync.max_image_offset``, or the tour has no camera). ``odometry``: the odometry track around
+    the scan (None: the tour has no odometry); it is the stream's live track, valid until the next
+    item is asked for.
+    """
+
+    scan: Scan
+    segmentation: Segmentation | None
+    odometry: OdomTrack | None
+
+
+@dataclass
+class StreamCounts:
+    """What the stream read and skipped."""
+
+    scans: int = 0  # yielded
+    odometry: int = 0  # odometry messages read
+    bad_scans: int = 0
+    scans_out_of_order: int = 0
+    #: scans with no image close enough: how far the nearest one was, ns (at most 4096 kept)
+    unpaired_offsets_ns: list[int] = field(default_factory=list)
+
+
+class ScanStream:
+    """The scans of ``tour`` paired with segmentations from ``frames`` and with the odometry.
+
+    Iterate once. The bag is opened for the iteration and closed at its end (or when the iterator is
+    closed). ``frames`` is not closed here: its owner closes it. ``progress(done, total)`` is called
+    every 50 scan messages and at the end.
+    """
+
+    def __init__(self, tour: Tour, sync: SyncConfig, frames: FrameSource | None = None,
+                 progress: ProgressFn | None = None) -> None:
+        self.tour = tour
+        self.sync = sync
+        self.frames = frames
+        self.progress = progress
+        self.counts = StreamCounts()
+        self.read_stats = ReadStats()
+        #: the odometry track (None: the tour has no odometry topic)
+        self.odometry = OdomTrack(sync.max_odom_gap) if tour.topics.odometry else None
+        #: seconds spent waiting for segmentations (a slow model shows here)
+        self.wait_images_s = 0.0
+        self._segs: deque[Segmentation] = deque()
+        self._frames_done = frames is None
+        self._pending: deque[tuple[int, Scan]] = deque()  # (bag time, scan)
+        self._max_offset_ns = int(sync.max_image_offset * 1e9)
+        self._keep_images_ns = int(sync.keep_images_s * 1e9)
+        self._keep_odom_ns = int(max(sync.keep_odometry_s, sync.max_image_offset) * 1e9)
+        self._max_wait_ns = int(sync.max_wait_s * 1e9)
+        self._last_scan_ns: tuple[int, int] | None = None  # stamp and reference time of the last scan
+
+    def __iter__(self) -> Iterator[PairedScan]:
+        tour = self.tour
+        scan_topic = tour.topics.scan
+        topics = [t for t in (scan_topic, tour.topics.odometry) if t]
+        with open_bag(tour.bag) as reader:  # opened once: counting and streaming share its index
+            total = message_count(tour.bag, scan_topic, reader)
+            read = self.read_stats.read
+            for topic, t_bag, msg in iter_messages(tour.bag, topics, self.read_stats, reader):
+                if topic == scan_topic:
+                    self._on_scan(t_bag, msg)
+                    if self.progress is not None and read.get(topic, 0) % 50 == 0:
+                        self.progress(read.get(topic, 0), total)
+                else:
+                    self._on_odometry(msg)
+                while self._pending and self._ready(t_bag, *self._pending[0]):
+                    yield from self._pair(self._pending.popleft()[1])
+            while self._pending:
+                yield from self._pair(self._pending.popleft()[1])
+        if self.progress is not None:
+            self.progress(total, total)
+
+    # -- inputs -----------------------------------------------------------------------------
+    def _on_odometry(self, msg: object) -> None:
+        assert self.odometry is not None
+        stamp, _, _, pose = odometry_from_msg(msg, self.tour.topics.odometry or "")
+        self.odometry.add(stamp, pose)
+        self.counts.odometry += 1
+
+    def _on_scan(self, t_bag: int, msg: object) -> None:
+        scan = scan_from_msg(msg, self.tour.topics.scan)
+        if scan.ranges.size == 0 or not np.isfinite(scan.angle_increment) or scan.angle_increment == 0:
+            self.counts.bad_scans += 1
+            return
+        self._pending.append((t_bag, scan))
+
+    # -- pairing ------------------------------------------------------------------------------
+    @staticmethod
+    def _end_ns(scan: Scan) -> int:
+        return scan.stamp_ns + int(scan.time_increment * 1e9 * scan.ranges.size)
+
+    def _ready(self, t_bag_now: int, scan_bag: int, scan: Scan) -> bool:
+        # odometry must reach past the sweep and the latest image it may be paired with (motion compensation)
+        need = self._end_ns(scan) + self._max_offset_ns
+        odom = self.odometry
+        odom_ok = odom is None or (odom.last_ns is not None and odom.last_ns >= need)
+        waited = t_bag_now - scan_bag > self._max_wait_ns or len(self._pending) > self.sync.max_wait_scans
+        return odom_ok or waited
+
+    def _pair(self, scan: Scan) -> Iterator[PairedScan]:
+        # repeated or backwards stamps, or a sweep whose middle comes before the last one's: skipped, counted
+        ref = Painter.reference_ns(scan)
+        if self._last_scan_ns is not None and (scan.stamp_ns <= self._last_scan_ns[0] or ref <= self._last_scan_ns[1]):
+            self.counts.scans_out_of_order += 1
+            return
+        self._last_scan_ns = (scan.stamp_ns, ref)
+        t0 = time.perf_counter()
+        seg = self._segmentation(scan)
+        self.wait_images_s += time.perf_counter() - t0
+        self.counts.scans += 1
+        yield PairedScan(scan, seg, self.odometry)
+        if self.odometry is not None:
+            self.odometry.trim(scan.stamp_ns - self._keep_odom_ns)  # forget what no future scan needs
+
+    def _segmentation(self, scan: Scan) -> Segmentation | None:
+        """The segmentation nearest the scan's middle, pulling frames only as far as needed."""
+        mid = scan.stamp_ns + (self._end_ns(scan) - scan.stamp_ns) // 2
+        segs = self._segs
+        while not self._frames_done and (not segs or segs[-1].stamp_ns < mid + self._max_offset_ns):
+            assert self.frames is not None
+            seg = self.frames.next()
+            if seg is None:
+                self._frames_done = True
+            else:
+                segs.append(seg)
+        while len(segs) > 1 and segs[0].stamp_ns < mid - self._max_offset_ns - self._keep_images_ns:
+            assert self.frames is not None
+            self.frames.release(segs.popleft())
+        if not segs:
+            return None
+        best = min(segs, key=lambda s: abs(s.stamp_ns - mid))
+        if abs(best.stamp_ns - mid) <= self._max_offset_ns:
+            return best
+        if len(self.counts.unpaired_offsets_ns) < _MAX_OFFSETS_KEPT:
+            self.counts.unpaired_offsets_ns.append(abs(best.stamp_ns - mid))
+        return None
+
+
+def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
+                    calibration: str | Path | None = None,
+                    overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
+    """The effective config and the opened tour, as ``semmap build`` sees them (also ``semmap paint``).
+
+    A simulated tour's manifest names the class list of its label images; it applies unless
+    the config sets ``segmentation.class_list``.
+    """
+    if isinstance(config, BuildConfig):
+        cfg, cfg_dir = config, Path.cwd()
+        if overrides:
+            cfg, _ = load_build_config(None, merge_overrides(config.model_dump(exclude_unset=True), overrides))
+    else:
+        cfg, cfg_dir = load_build_config(config, overrides)
+    tour_path = Path(tour)
+    if not tour_path.exists():
+        raise BagError(f"{tour_path}: no such file or directory")
+    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
+    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
+        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
+        cfg = cfg.model_copy(update={"segmentation": seg_cfg})
+    return tinfo, cfg
+
+
+def tour_class_names(tour: Tour, cfg: BuildConfig) -> tuple[str, ...]:
+    """The class names the tour's scans are painted with: the segmenter's (none without a camera)."""
+    if tour.topics.frames is None:
+        return ()
+    from ..segment.base import create_segmenter
+
+    probe = create_segmenter(cfg.segmentation)  # backends load their models lazily
+    try:
+        return tuple(probe.names)
+    finally:
+        probe.close()

@@ -1,0 +1,109 @@
+"""Segmentations of a tour's camera topic, one per image, in bag order.
+
+:class:`FrameSource` is what the scan stream (:class:`semmap.paint.stream.ScanStream`) pulls
+segmentations from. :class:`InProcessFrames` reads, decodes and segments in the calling process;
+:class:`semmap.workers.FrameWorker` does the same in a worker process (both use
+:class:`FrameReader`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, Protocol
+
+from ..config import SegmentationConfig
+from ..errors import SemmapError
+from ..io.tour import COMPRESSED_T
+from ..records import Segmentation
+
+__all__ = ["FrameSource", "FrameReader", "InProcessFrames"]
+
+log = logging.getLogger(__name__)
+
+
+class FrameSource(Protocol):
+    """Segmentations of the camera topic, one per frame, in bag order."""
+
+    counts: dict[str, Any]
+
+    def wait_ready(self) -> None:
+        """Block until the segmenter is loaded (start-up is not counted as work)."""
+
+    def next(self) -> Segmentation | None:
+        """The next segmentation; None after the last."""
+
+    def release(self, seg: Segmentation) -> None:
+        """The caller no longer needs ``seg`` (its memory may be reused)."""
+
+    def close(self) -> None:
+        """Stop, and free what was held."""
+
+
+class FrameReader:
+    """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
+    here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
+
+    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+                 counts: dict[str, int]) -> None:
+        from ..io.bag import iter_messages, open_bag
+        from .base import create_segmenter
+
+        self._stack = contextlib.ExitStack()
+        segmenter = create_segmenter(seg_cfg)
+        self._stack.callback(segmenter.close)
+        try:
+            reader = self._stack.enter_context(open_bag(bag))
+        except BaseException:
+            self._stack.close()
+            raise
+        self._it = self._frames(iter_messages(bag, [topic], reader=reader), topic, msgtype, segmenter, counts)
+
+    @staticmethod
+    def _frames(messages: Iterator[tuple[str, int, Any]], topic: str, msgtype: str, segmenter: Any,
+                counts: dict[str, int]) -> Iterator[Segmentation]:
+        from ..io.messages import compressed_image_from_msg, image_from_msg
+
+        for _, _, msg in messages:
+            t0 = time.perf_counter()
+            try:
+                img = compressed_image_from_msg(msg, topic) if msgtype == COMPRESSED_T else image_from_msg(msg, topic)
+                seg = segmenter.segment(img)
+            except SemmapError as exc:  # a bad frame is skipped and counted
+                counts["bad_frames"] += 1
+                log.debug("skipped frame on %s: %s", topic, exc)
+                continue
+            counts["frames"] += 1
+            counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
+            yield seg
+
+    def __iter__(self) -> Iterator[Segmentation]:
+        return self._it
+
+    def close(self) -> None:
+        self._it.close()
+        self._stack.close()
+
+
+class InProcessFrames:
+    """Segmentations of a camera topic, decoded in this process, one at a time."""
+
+    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
+        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self._source = FrameReader(bag, topic, msgtype, seg_cfg, self.counts)
+        self._it = iter(self._source)
+
+    def next(self) -> Segmentation | None:
+        return next(self._it, None)
+
+    def wait_ready(self) -> None:
+        pass
+
+    def release(self, seg: Segmentation) -> None:
+        pass
+
+    def close(self) -> None:
+        self._source.close()

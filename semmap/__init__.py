@@ -5,6 +5,7 @@ The public API::
     import semmap
     result = semmap.simulate("demo", "tours/demo", fmt="mcap", seed=0)
     info = semmap.bag_info(result.bag)
+    m = semmap.load_map("maps/demo")          # a map folder written by semmap build
 
 Heavy modules load on first use, so ``import semmap`` stays fast.
 """
@@ -18,6 +19,10 @@ from .version import __version__
 
 _LAZY = {
     "build": "semmap.pipeline",
+    "load_map": "semmap.mapfolder.reader",
+    "MapFolder": "semmap.mapfolder.reader",
+    "BuildSummary": "semmap.mapfolder.summary",
+    "ScanStream": "semmap.paint.stream",
     "BuildResult": "semmap.pipeline",
     "BuildConfig": "semmap.config",
     "simulate": "semmap.sim.tour",
@@ -37,6 +42,8 @@ _LAZY = {
     "SemmapError": "semmap.errors",
 }
 
+_RENAMED = {"load_map": "load_map_folder"}
+
 __all__ = ["__version__", *_LAZY]
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -46,6 +53,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from .io.bag import BagInfo, bag_info
     from .io.calibration import read_calibration, write_calibration
     from .io.mapserver import read_map
+    from .mapfolder.reader import MapFolder
+    from .mapfolder.reader import load_map_folder as load_map
+    from .mapfolder.summary import BuildSummary
+    from .paint.stream import ScanStream
     from .pipeline import BuildResult, build
     from .records import Calibration, CameraIntrinsics, Mobility
     from .sim.scenarios import SCENARIOS
@@ -57,6 +68,6 @@ def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'semmap' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
+    value = getattr(import_module(module), _RENAMED.get(name, name))
     globals()[name] = value
     return value

@@ -49,6 +49,13 @@ class WorkerError(SemmapError):
     exit_code = 6
 
 
+class MapFolderError(SemmapError):
+    """A map folder cannot be read back: a file is missing or damaged, or it was written with another
+    map-folder layout (``map_folder_version``)."""
+
+    exit_code = 7
+
+
 class InternalError(Exception):
     """A bug in a worker process. The message is the worker's exception type and message; the
     worker's own traceback is this exception's ``__cause__`` (shown with ``--debug``)."""

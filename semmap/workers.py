@@ -52,16 +52,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .config import GridConfig, RegistrationConfig, SegmentationConfig
 from .errors import InternalError, SemmapError, WorkerError
-from .records import Segmentation
+from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
 from .segment.frames import FrameReader, FrameSource, InProcessFrames
+
+if TYPE_CHECKING:
+    from .grid import GridLayers
 
 __all__ = ["FrameSource", "Mapper", "InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
            "MapperResult", "signals_held"]
@@ -548,7 +551,7 @@ class MapperResult:
     """What the mapping stages return at the end of a tour."""
 
     poses: NDArray[np.float64]  # (N, 3) base_link in the map frame, one per pushed scan
-    layers: Any  # GridLayers
+    layers: GridLayers
     registration: dict[str, Any]  # Registrar.stats
     register_busy_s: float
     fuse_busy_s: float
@@ -562,7 +565,7 @@ class Mapper(Protocol):
     def wait_ready(self) -> None:
         """Block until the stages have loaded their libraries."""
 
-    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+    def push(self, painted: PaintedScan, odom_pose: NDArray[np.float64] | None) -> None:
         """Register and fuse one painted scan (with the odometry pose at its stamp, if any)."""
 
     def finish(self) -> MapperResult:
@@ -587,7 +590,7 @@ class InProcessMapper:
     def wait_ready(self) -> None:
         pass
 
-    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+    def push(self, painted: PaintedScan, odom_pose: NDArray[np.float64] | None) -> None:
         t0 = time.perf_counter()
         pose = self._registrar.register(painted, odom_pose)
         t1 = time.perf_counter()
@@ -693,7 +696,7 @@ class MapperWorkers:
             raise self._group.failure() from None
         self._group.check()
 
-    def push(self, painted: Any, odom_pose: NDArray[np.float64] | None) -> None:
+    def push(self, painted: PaintedScan, odom_pose: NDArray[np.float64] | None) -> None:
         self._batch.append((painted, odom_pose, None if self._preparer is None else self._preparer.prepare(painted)))
         if len(self._batch) >= self._batch_size:
             self._send(self._batch)

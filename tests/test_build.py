@@ -143,3 +143,47 @@ def test_lidar_only_real_bag(data_dir, tmp_path, caplog):
         return float((occ.occupied & cells).sum() / cells.sum())
 
     assert left(fixed.out) < 0.05 < left(res.out)
+
+
+def test_load_map_reads_back_what_build_wrote(demo_map):
+    """semmap.load_map: the map as map_server loads map.yaml, the layers, objects, trajectory, config and
+    summary, all equal to what the build wrote."""
+    import semmap
+
+    m = semmap.load_map(demo_map.out)
+    assert m.summary == demo_map.summary
+    seen = read_map(demo_map.out / "map.yaml")
+    assert m.spec == seen.spec
+    assert np.array_equal(m.occupied, seen.occupied) and np.array_equal(m.unknown, seen.unknown)
+    grid = np.load(demo_map.out / "grid.npz")
+    assert np.array_equal(m.occupied, grid["occupied"]) and np.array_equal(m.semi_static, grid["semi_static"])
+    assert np.array_equal(m.layers.sightings, grid["sightings"]) and m.layers.n_scans == 418
+    assert m.semi_static.sum() == m.summary.map.semi_static_cells > 0
+    objs = json.loads((demo_map.out / "semi_static_objects.json").read_text())["objects"]
+    assert [o.as_dict() for o in m.objects] == objs
+    assert m.poses.shape == (418, 3) and m.odometry.shape == (418, 3)
+    assert m.config.registration.mode == "fused" and m.class_names[0] == "person"
+
+
+def test_load_map_refuses_another_layout_and_names_the_file(demo_map, tmp_path):
+    import shutil
+
+    import semmap
+    from semmap.errors import MapFolderError
+
+    folder = tmp_path / "m"
+    shutil.copytree(demo_map.out, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    summary["map_folder_version"] = 99
+    (folder / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(MapFolderError, match=r"summary.json: map_folder_version 99; this semmap reads version 1"):
+        semmap.load_map(folder)
+    summary["map_folder_version"] = 1
+    (folder / "summary.json").write_text(json.dumps(summary))
+    (folder / "grid.npz").write_bytes(b"not a zip")
+    with pytest.raises(MapFolderError, match=r"grid.npz: not a readable grid"):
+        semmap.load_map(folder)
+    (folder / "grid.npz").unlink()
+    with pytest.raises(MapFolderError, match=r"grid.npz: missing"):
+        semmap.load_map(folder)
+    assert MapFolderError.exit_code == 7

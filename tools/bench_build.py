@@ -73,17 +73,15 @@ def score_legs(bag: Path, mapdir: Path) -> dict:
     """Leg positions (hand-labelled, laser frame) that stay occupied in the cleaned map."""
     import numpy as np
 
+    from semmap import load_map
     from semmap.geometry import se2_apply
     from semmap.grid.metrics import points_to_mask
     from semmap.io.bag import iter_messages
-    from semmap.io.mapserver import read_map
     from semmap.io.messages import stamp_ns
-    from semmap.io.tum import read_tum
     from semmap.register.metrics import interpolate_poses
 
-    occ = read_map(mapdir / "map.yaml")
-    grid = np.load(mapdir / "grid.npz")
-    est_t, est_p = read_tum(mapdir / "trajectory.tum")
+    m = load_map(mapdir)
+    est_t, est_p = m.stamps_ns, m.poses
     legs, scans_t = [], []
     for topic, _, msg in iter_messages(bag, ["/leg_cluster_positions", "/training_scan"]):
         if topic == "/training_scan":
@@ -95,14 +93,14 @@ def score_legs(bag: Path, mapdir: Path) -> dict:
                 if np.all(np.isfinite(pose)):
                     legs.append(se2_apply(pose, pts))
     pts = np.concatenate(legs) if legs else np.zeros((0, 2))
-    leg_cells = points_to_mask(pts, occ.spec)
+    leg_cells = points_to_mask(pts, m.spec)
     import cv2
 
     near = cv2.dilate(leg_cells.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)  # legs are ~10 cm
-    hit = grid["hits"] > 0
+    hit = m.layers.hits > 0
     return {"leg_positions": int(pts.shape[0]), "leg_cells": int(leg_cells.sum()),
             "leg_cells_ever_hit": float((hit & near).sum() / max(near.sum(), 1)),
-            "leg_cells_occupied_in_map": float((occ.occupied & near).sum() / max(near.sum(), 1))}
+            "leg_cells_occupied_in_map": float((m.occupied & near).sum() / max(near.sum(), 1))}
 
 
 def main() -> int:

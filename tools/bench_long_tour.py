@@ -333,8 +333,8 @@ def measure(minutes: float, args: argparse.Namespace, tours: Path, maps: Path, d
     res, summary, sampler, exits = build_tour(tour, mapdir, args.sample_interval)
     import numpy as np
 
-    grid = np.load(mapdir / "grid.npz")
-    grid_bytes = int(sum(grid[k].nbytes for k in grid.files))
+    with np.load(mapdir / "grid.npz", allow_pickle=False) as grid:  # the file's arrays, as written
+        grid_bytes = int(sum(grid[k].nbytes for k in grid.files))
     w, h = summary["map"]["size_cells"]
     res_m = summary["map"]["resolution"]
     cells = int(w * h)

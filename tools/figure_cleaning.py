@@ -80,23 +80,18 @@ def main() -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from semmap import load_map
     from semmap.grid.metrics import transfer
-    from semmap.io.mapserver import read_map
-    from semmap.io.tum import read_tum
     from semmap.register.metrics import ate_errors
     from semmap.sim.score import load_truth, naive_map
 
     truth = load_truth(args.tour)
     spec = truth.spec
-    est_t, est_p = read_tum(args.map / "trajectory.tum")
-    _, t_gt_map = ate_errors(est_t, est_p, truth.stamps_ns, truth.poses)
-    occ = read_map(args.map / "map.yaml")
-    semi = read_map(args.map / "semi_static.yaml")
-    grid = np.load(args.map / "grid.npz")
-    dropped = grid["dynamic_removed"] if "dynamic_removed" in grid.files else np.zeros(occ.spec.shape, bool)
-    after = {"occupied": transfer(occ.occupied, occ.spec, spec, t_gt_map),
-             "semi": transfer(semi.occupied & occ.occupied, semi.spec, spec, t_gt_map),
-             "dropped": transfer(dropped, occ.spec, spec, t_gt_map)}
+    m = load_map(args.map)
+    _, t_gt_map = ate_errors(m.stamps_ns, m.poses, truth.stamps_ns, truth.poses)
+    after = {"occupied": transfer(m.occupied, m.spec, spec, t_gt_map),
+             "semi": transfer(m.semi_static & m.occupied, m.spec, spec, t_gt_map),
+             "dropped": transfer(m.cleaned.dynamic_removed, m.spec, spec, t_gt_map)}
     naive = naive_map(args.tour)
     before = {"occupied": transfer(naive.occupied, naive.spec, spec), "semi": np.zeros(spec.shape, bool),
               "dropped": np.zeros(spec.shape, bool)}

@@ -57,6 +57,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 from dataclasses import dataclass, replace
 
 import cv2
@@ -101,6 +102,14 @@ class SemiStaticObject:
         return {"class": self.class_name, "centroid": [round(v, 3) for v in self.centroid],
                 "size": [round(v, 3) for v in self.size], "yaw": round(self.yaw, 4), "n_cells": self.n_cells,
                 "views": self.views, "footprint": [list(p) for p in self.footprint]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SemiStaticObject:
+        """The inverse of :meth:`as_dict` (an entry of ``semi_static_objects.json``)."""
+        return cls(class_name=str(d["class"]), centroid=(float(d["centroid"][0]), float(d["centroid"][1])),
+                   size=(float(d["size"][0]), float(d["size"][1])), yaw=float(d["yaw"]), n_cells=int(d["n_cells"]),
+                   views=int(d.get("views", 0)),
+                   footprint=tuple((float(x), float(y)) for x, y in d.get("footprint", ())))
 
 
 @dataclass(frozen=True)

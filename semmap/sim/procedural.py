@@ -40,7 +40,7 @@ from ..config import SimConfig, load_model
 from ..errors import SimulationError
 from ..geometry import se2_compose, wrap_angle
 from .robot import Trajectory, check_clearance, people_clearance, plan_tour
-from .scenarios import Scenario, _Ids, _walls
+from .scenarios import IdCounter, Scenario, walls_with_doors
 from .sensors import mount_se2
 from .world import (
     Person,
@@ -323,7 +323,7 @@ class _Building:
     outline: NDArray[np.float64]
     chamfered: bool
     corridor: int | None  # index of the corridor room
-    ids: _Ids = field(default_factory=lambda: _Ids(0))
+    ids: IdCounter = field(default_factory=lambda: IdCounter(0))
 
 
 def _split(rng: np.random.Generator, r: tuple[float, float, float, float], axis: int) -> tuple[
@@ -457,7 +457,7 @@ def _building(rng: np.random.Generator) -> _Building:
     if len({find(i) for i in range(len(leaves))}) != 1:
         raise _Retry("rooms not connected")
 
-    ids = _Ids(0)
+    ids = IdCounter(0)
     segs: list[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]] = []
     m = len(outline)
     for k in range(m):
@@ -472,7 +472,7 @@ def _building(rng: np.random.Generator) -> _Building:
             if abs(float(rel[0] * u[1] - rel[1] * u[0])) < 1e-6 and -1e-6 <= float(rel @ u) <= np.hypot(*(b - a)):
                 cuts.append((float(rel @ u), d.width + WALL_THICKNESS_M))
         segs.append((p0, p1, cuts))
-    walls = _walls(ids, segs, WALL_THICKNESS_M, WALL_HEIGHT_M)
+    walls = walls_with_doors(ids, segs, WALL_THICKNESS_M, WALL_HEIGHT_M)
     return _Building(w, h, leaves, doors, walls, outline, chamfered, corridor, ids)
 
 

@@ -35,7 +35,7 @@ from .world import (
     wall,
 )
 
-__all__ = ["Scenario", "SCENARIOS", "get_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "get_scenario", "IdCounter", "walls_with_doors"]
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,9 @@ class Scenario:
     base: World | None = None  # for change scenarios: the world before the changes
 
 
-class _Ids:
+class IdCounter:
+    """Object ids of a world, counted up from ``start``."""
+
     def __init__(self, start: int) -> None:
         self.n = start
 
@@ -54,7 +56,7 @@ class _Ids:
         return self.n
 
 
-def _walls(ids: _Ids, segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
+def walls_with_doors(ids: IdCounter, segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
            thickness: float = 0.12, height: float = 2.6) -> list[WorldObject]:
     """Straight walls with door gaps: each segment is (p0, p1, [(centre along, width), ...])."""
     out = []
@@ -87,8 +89,8 @@ def _person(pid: int, k: int, waypoints: list[tuple[float, float]], **kw: Any) -
 
 
 def demo() -> Scenario:
-    ids = _Ids(0)
-    objs = _walls(ids, [((0, 0), (8, 0), []), ((8, 0), (8, 6), []), ((8, 6), (0, 6), []),
+    ids = IdCounter(0)
+    objs = walls_with_doors(ids, [((0, 0), (8, 0), []), ((8, 0), (8, 6), []), ((8, 6), (0, 6), []),
                         ((0, 6), (0, 0), [(3.0, 1.0)])])
     objs += [
         pillar(ids(), 2.5, 4.5),
@@ -113,7 +115,7 @@ def demo() -> Scenario:
 # ward: a hospital corridor with patient rooms on both sides
 
 
-def _ward_building(ids: _Ids) -> list[WorldObject]:
+def _ward_building(ids: IdCounter) -> list[WorldObject]:
     doors = [(3.0 + 6.0 * i, 1.4) for i in range(5)]
     segs = [
         ((0, 0), (30, 0), doors),  # corridor south wall
@@ -125,10 +127,10 @@ def _ward_building(ids: _Ids) -> list[WorldObject]:
     ]
     segs += [((6.0 * i, 2.4), (6.0 * i, 7.4), []) for i in range(1, 5)]
     segs += [((6.0 * i, 0.0), (6.0 * i, -5.0), []) for i in range(1, 5)]
-    return _walls(ids, segs)
+    return walls_with_doors(ids, segs)
 
 
-def _ward_furniture(ids: _Ids) -> list[WorldObject]:
+def _ward_furniture(ids: IdCounter) -> list[WorldObject]:
     objs: list[WorldObject] = []
     for i in range(5):
         xr = 6.0 * i
@@ -176,7 +178,7 @@ def _ward_route(reverse: bool) -> list[tuple[float, float]]:
 
 
 def ward() -> Scenario:
-    ids = _Ids(0)
+    ids = IdCounter(0)
     objs = _ward_building(ids) + _ward_furniture(ids)
     return Scenario(World("ward", tuple(objs), _ward_people(0), np.asarray(_ward_route(False), float),
                           start_yaw=0.0,
@@ -210,8 +212,8 @@ def ward_b() -> Scenario:
 # office: open plan with pillars, desks, a lounge
 
 
-def _office_objects(ids: _Ids, variant: int) -> list[WorldObject]:
-    objs = _walls(ids, [((0, 0), (20, 0), []), ((20, 0), (20, 14), []), ((20, 14), (0, 14), []),
+def _office_objects(ids: IdCounter, variant: int) -> list[WorldObject]:
+    objs = walls_with_doors(ids, [((0, 0), (20, 0), []), ((20, 0), (20, 14), []), ((20, 14), (0, 14), []),
                         ((0, 14), (0, 0), [(7.0, 1.2)])])
     objs += [pillar(ids(), x, y, 0.5) for x in (5.0, 10.0, 15.0) for y in (4.5, 9.5)]
     for x in (4.0, 7.5, 11.0, 14.5):  # south desks, users face north
@@ -251,7 +253,7 @@ _OFFICE_ROUTE = [(1.6, 7.0), (18.2, 7.0), (18.2, 10.4), (1.8, 10.4), (1.8, 3.6),
 
 
 def office() -> Scenario:
-    ids = _Ids(0)
+    ids = IdCounter(0)
     objs = _office_objects(ids, 0)
     return Scenario(World("office", tuple(objs), _office_people(0), np.asarray(_OFFICE_ROUTE, float),
                           start_yaw=0.0,
@@ -284,8 +286,8 @@ def office_b() -> Scenario:
 
 
 def occlusion() -> Scenario:
-    ids = _Ids(0)
-    objs = _walls(ids, [((0, 0), (12, 0), []), ((12, 0), (12, 4), []), ((12, 4), (0, 4), []),
+    ids = IdCounter(0)
+    objs = walls_with_doors(ids, [((0, 0), (12, 0), []), ((12, 0), (12, 4), []), ((12, 4), (0, 4), []),
                         ((0, 4), (0, 0), [])])
     objs += [
         chair(ids(), (3.2, 2.1, math.pi)),

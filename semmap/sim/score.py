@@ -363,22 +363,15 @@ def score_map(tour: str | Path, map_dir: str | Path, truth: GroundTruth | None =
     Adds ``ate_rmse_m``: the RMSE (m) of the positions of ``trajectory.tum`` against the true
     trajectory after the SE(2) alignment that also gives ``T_gt_map`` for the map scores.
     """
-    from ..io.mapserver import read_map
-    from ..io.tum import read_tum
+    from ..mapfolder.reader import load_map_folder
     from ..register.metrics import ate_errors
 
-    map_dir = Path(map_dir)
+    m = load_map_folder(map_dir)
     truth = truth if truth is not None else load_truth(tour)
-    est_t, est_p = read_tum(map_dir / "trajectory.tum")
-    err, t_gt_map = ate_errors(est_t, est_p, truth.stamps_ns, truth.poses)
-    occ = read_map(map_dir / "map.yaml")
-    semi = read_map(map_dir / "semi_static.yaml")
-    if semi.spec != occ.spec:
-        raise ValueError(f"{map_dir}: semi_static.yaml and map.yaml cover different grids")
-    objects_path = map_dir / "semi_static_objects.json"
-    objects = json.loads(objects_path.read_text(encoding="utf-8"))["objects"] if objects_path.is_file() else []
+    err, t_gt_map = ate_errors(m.stamps_ns, m.poses, truth.stamps_ns, truth.poses)
+    objects = [o.as_dict() for o in m.objects]
     return {"ate_rmse_m": float(np.sqrt(np.mean(err ** 2))),
-            **score_masks(tour, occ.spec, occ.occupied, semi.occupied, objects, t_gt_map, truth)}
+            **score_masks(tour, m.spec, m.occupied, m.semi_static, objects, t_gt_map, truth)}
 
 
 # ---------------------------------------------------------------------------------------

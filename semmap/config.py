@@ -20,6 +20,7 @@ __all__ = [
     "FramesConfig",
     "SyncConfig",
     "SegmentationConfig",
+    "OcclusionConfig",
     "PaintConfig",
     "BuildConfig",
     "RegistrationConfig",
@@ -235,6 +236,41 @@ class SegmentationConfig(_Model):
                                                      "(null: no cache)")
 
 
+class OcclusionConfig(_Model):
+    """The occlusion filter (docs/occlusion.md): points on a mask that nearer points of the same mask hide
+    from the camera become unknown instead of taking the mask's label. Passed as is to
+    :func:`semmap.paint.occlusion.hidden_points`."""
+
+    filter: bool = Field(True, description="on or off (off: every point on a mask takes the mask's label)")
+    depth_margin: float = Field(0.25, ge=0, description="a point is hidden only by points at least this much "
+                                                        "nearer the camera, m")
+    depth_margin_rel: float = Field(0.03, ge=0, le=1, description="plus this share of the point's distance from "
+                                                                  "the camera")
+    ray_width_deg: float = Field(0.5, ge=0, description="added to each occluding point's footprint (one beam "
+                                                        "spacing), deg")
+    max_gap: float = Field(2.2, ge=0, description="nearer points of the same mask up to this far apart hide the "
+                                                  "points between them when the mask joins them in the image, m "
+                                                  "(0: off)")
+    edge_px: float = Field(8.0, ge=0, description="a mask may spill this many pixels past its object's outermost "
+                                                  "point; points there behind the object are hidden too, px (0: off)")
+    overhang: float = Field(0.3, ge=0, description="an object may reach this far to the side of its outermost "
+                                                   "point seen at LiDAR height (a seat over chair legs), m (0: off)")
+    line_step: float = Field(0.06, ge=0, description="neighbouring scan points closer than this are one surface; "
+                                                     "a surface that runs off the mask is background behind it, m "
+                                                     "(0: off)")
+    line_depth_margin: float = Field(0.15, ge=0, description="such background is hidden by mask points at least "
+                                                             "this much nearer, m")
+    object_extent: float = Field(1.5, ge=0, description="an object spans at most this many times its class's "
+                                                        "typical size (class table, sizes:); a point of its mask "
+                                                        "farther than that from a nearer point of the mask, behind "
+                                                        "it, is hidden (0: off)")
+
+    @property
+    def ray_width(self) -> float:
+        """``ray_width_deg`` in radians."""
+        return math.radians(self.ray_width_deg)
+
+
 class PaintConfig(_Model):
     """Turning ranges into points and projecting them into the camera."""
 
@@ -243,34 +279,28 @@ class PaintConfig(_Model):
         "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
                                "'no_return' clears free space to the range limit, for drivers such as "
                                "Hokuyo URG that report 'nothing seen' as small error codes")
-    occlusion_filter: bool = Field(True, description="points on a mask that nearer points of the same mask hide "
-                                                     "from the camera become unknown instead of taking the "
-                                                     "mask's label (README, 'The occlusion filter')")
-    occlusion_depth_margin: float = Field(0.25, ge=0, description="occlusion filter: a point is hidden only by "
-                                                                  "points at least this much nearer the camera, m")
-    occlusion_depth_margin_rel: float = Field(0.03, ge=0, le=1, description="occlusion filter: plus this share of "
-                                                                            "the point's distance from the camera")
-    occlusion_ray_width_deg: float = Field(0.5, ge=0, description="occlusion filter: added to each occluding "
-                                                                  "point's footprint (one beam spacing), deg")
-    occlusion_max_gap: float = Field(2.2, ge=0, description="occlusion filter: nearer points of the same mask up to "
-                                                            "this far apart hide the points between them when the "
-                                                            "mask joins them in the image, m (0: off)")
-    occlusion_edge_px: float = Field(8.0, ge=0, description="occlusion filter: a mask may spill this many pixels "
-                                                            "past its object's outermost point; points there "
-                                                            "behind the object are hidden too, px (0: off)")
-    occlusion_overhang: float = Field(0.3, ge=0, description="occlusion filter: an object may reach this far to "
-                                                             "the side of its outermost point seen at LiDAR "
-                                                             "height (a seat over chair legs), m (0: off)")
-    occlusion_line_step: float = Field(0.06, ge=0, description="occlusion filter: neighbouring scan points closer "
-                                                               "than this are one surface; a surface that runs "
-                                                               "off the mask is background behind it, m (0: off)")
-    occlusion_line_depth_margin: float = Field(0.15, ge=0, description="occlusion filter: such background is hidden "
-                                                                      "by mask points at least this much nearer, m")
-    occlusion_object_extent: float = Field(1.5, ge=0, description="occlusion filter: an object spans at most this "
-                                                                  "many times its class's typical size (class "
-                                                                  "table, sizes:); a point of its mask farther "
-                                                                  "than that from a nearer point of the mask, "
-                                                                  "behind it, is hidden (0: off)")
+    occlusion: OcclusionConfig = OcclusionConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _flat_occlusion_keys(cls, data: Any) -> Any:
+        # Before the nested section the filter's settings were flat keys, paint.occlusion_<name>
+        # (map folders' config.yaml dumped them all); they still load. A nested key given too wins:
+        # it is the newer spelling, which overrides (e.g. from the command line) use.
+        if not isinstance(data, dict):
+            return data
+        flat = [k for k in data if isinstance(k, str) and k.startswith("occlusion_")
+                and k.removeprefix("occlusion_") in OcclusionConfig.model_fields]
+        nested = data.get("occlusion")
+        if not flat or not (nested is None or isinstance(nested, dict)):
+            return data
+        out = {k: v for k, v in data.items() if k not in flat}
+        out["occlusion"] = {**{k.removeprefix("occlusion_"): data[k] for k in flat}, **(nested or {})}
+        return out
+
+    def with_occlusion_filter(self, on: bool) -> PaintConfig:
+        """This config with the occlusion filter switched on or off (its other settings kept)."""
+        return self.model_copy(update={"occlusion": self.occlusion.model_copy(update={"filter": on})})
 
 
 class EkfConfig(_Model):

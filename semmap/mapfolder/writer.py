@@ -153,7 +153,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
             "points_in_view_fraction": round(pipe.painter.stats.points_in_view
                                              / max(pipe.painter.stats.points_total, 1), 4),
             "occlusion_filter": {
-                "on": cfg.paint.occlusion_filter,
+                "on": cfg.paint.occlusion.filter,
                 "points_relabelled": pipe.painter.stats.occlusion_relabelled,
                 "points_relabelled_per_painted_scan": round(pipe.painter.stats.occlusion_relabelled
                                                             / max(pipe.painter.stats.painted, 1), 2),

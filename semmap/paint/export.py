@@ -98,7 +98,7 @@ def iter_painted(
     """Paint every scan of ``tour`` with and without the occlusion filter, in scan order.
 
     Scans are paired with images and odometry by the same streaming core as ``semmap build``.
-    The filter's parameters come from the config (``paint.occlusion_*``); the filtered
+    The filter's parameters come from the config (``paint.occlusion``); the filtered
     painting uses them even where the config switches the filter off.
     """
     from ..io.bag import iter_messages, message_count
@@ -106,14 +106,14 @@ def iter_painted(
     from ..workers import InProcessFrames
 
     tinfo, cfg, names = _load(tour, config, calibration, overrides)
-    on = cfg.model_copy(update={"paint": cfg.paint.model_copy(update={"occlusion_filter": True})})
+    on = cfg.model_copy(update={"paint": cfg.paint.with_occlusion_filter(True)})
 
     class _Pairs(_Pipeline):
         """The build's core, painting each scan twice and keeping the pairs instead of mapping."""
 
         def __init__(self, frames: InProcessFrames) -> None:
             super().__init__(tinfo, on, names, frames, mapper=None)
-            off = cfg.paint.model_copy(update={"occlusion_filter": False})
+            off = cfg.paint.with_occlusion_filter(False)
             self.raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names,
                                        load_class_table(cfg.segmentation.classes_file), off, cfg.sync,
                                        cfg.grid.no_return_range)

@@ -145,7 +145,7 @@ def write_map_folder(out: Path, tour: Tour, cfg: BuildConfig, pipe: _Pipeline, l
         "counts": {**pipe.counts, **{k: v for k, v in pipe.frame_counts.items()
                                      if k not in ("segment_ms", "peak_rss_mb", "cpu_s")}},
         "painting": {
-            "class_list": cfg.segmentation.class_list if pipe.class_names else None,
+            "class_list": getattr(cfg.segmentation, "class_list", None) if pipe.class_names else None,
             "backend": cfg.segmentation.backend if pipe.class_names else None,
             "scans_painted": pipe.painter.stats.painted,
             "readings_below_range_min_fraction": round(pipe.painter.stats.below_range_min

@@ -669,11 +669,13 @@ def _where(loc: tuple[int | str, ...], kind: str) -> str:
 def config_error(exc: ValidationError, source: str) -> ConfigError:
     """One line naming the source, the first bad field and what is wrong with it."""
     err = exc.errors()[0]
-    loc = _where(tuple(err["loc"]), err["type"]) or "<root>"
+    loc = _where(tuple(err["loc"]), err["type"])
     msg = err["msg"]
     if err["type"] == "extra_forbidden":
         msg = "unknown key"
-    return ConfigError(f"{source}: {loc}: {msg}")
+    elif err["type"] == "value_error":  # our own check: its message says what is wrong, and may name the field
+        msg = msg.removeprefix("Value error, ")
+    return ConfigError(f"{source}: {loc}: {msg}" if loc else f"{source}: {msg}")
 
 
 def load_model(model: type[BaseModel], data: Any, source: str) -> Any:

@@ -163,3 +163,32 @@ def test_the_mask_cache_keys_of_earlier_versions_still_hold(tmp_path):
         UltralyticsSegmentation(model=w, iou=0.5))]
     assert keys == ["onnx-6cd92fcc2b5ffacf", "sam3-faccee7a97f3f70a", "mediapipe-selfie-898d3e42c6960377",
                     "ultralytics-46d6fb33108f3152"]
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("class_lists: {mine: [person, robot]}\nmobility: {person: dynamic}\n",
+     "class_lists.mine: no mobility for ['robot']"),
+    ("mobility: {robot: flying}\n", "mobility.robot: unknown mobility 'flying' (expected one of unknown, static, "
+                                    "semi_static, dynamic)"),
+    ("mobility: {robot: dynamic}\nsizes: {robot: -1}\n", "sizes.robot: Input should be greater than 0"),
+    ("mobility: {robot: dynamic}\nsizes: {chair: 0.5}\n", "sizes.chair: not a class under 'mobility:'"),
+    ("mobility: {robot: dynamic}\nsize: {robot: 0.5}\n", "size: unknown key"),
+])
+def test_a_class_table_error_is_one_line_naming_the_file_and_the_field(tmp_path, text, message):
+    from semmap.classes import load_class_table
+
+    (tmp_path / "classes.yaml").write_text(text)
+    with pytest.raises(ConfigError) as e:
+        load_class_table(tmp_path / "classes.yaml")
+    assert str(e.value) == f"{(tmp_path / 'classes.yaml').resolve()}: {message}"
+
+
+def test_a_class_table_of_ones_own_names_the_label_values(tmp_path):
+    from semmap.classes import load_class_table
+    from semmap.records import Mobility
+
+    (tmp_path / "classes.yaml").write_text("class_lists: {site: [robot, cart]}\n"
+                                           "mobility: {robot: dynamic, cart: semi_static}\nsizes: {cart: 1.2}\n")
+    table = load_class_table(tmp_path / "classes.yaml")
+    assert table.names("site") == ("robot", "cart")
+    assert table.mobility_of("robot") is Mobility.DYNAMIC and table.size_of("cart") == 1.2

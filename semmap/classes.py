@@ -5,12 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Annotated, Any, Mapping, Sequence
 
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+
+from .config import load_model
 from .errors import ConfigError
 from .records import Mobility
 
-__all__ = ["ClassTable", "config_dir", "load_class_table"]
+__all__ = ["ClassTable", "ClassTableFile", "config_dir", "load_class_table"]
 
 
 def config_dir() -> Path:
@@ -63,43 +66,43 @@ class ClassTable:
         return [Mobility.STATIC] + [self.mobility_of(n) for n in names]
 
 
+def _mobility(v: Any) -> Mobility:
+    return v if isinstance(v, Mobility) else Mobility.parse(str(v))
+
+
+def _null_is_empty(v: Any) -> Any:
+    return {} if v is None else v
+
+
+class ClassTableFile(BaseModel):
+    """The schema of ``classes.yaml``: named class lists, every class's mobility, typical sizes."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    class_lists: dict[str, tuple[str, ...]] = Field(default_factory=dict,
+                                                    description="list name → class names (label value k: names[k-1])")
+    mobility: dict[str, Annotated[Mobility, BeforeValidator(_mobility)]] = Field(
+        default_factory=dict, description="class name → static, semi_static or dynamic")
+    sizes: dict[str, Annotated[float, Field(gt=0, le=100, strict=True)]] = Field(
+        default_factory=dict, description="class name → typical floor-level length of an object, m")
+
+    _nulls = field_validator("class_lists", "mobility", "sizes", mode="before")(_null_is_empty)
+
+    @model_validator(mode="after")
+    def _classes_have_a_mobility(self) -> ClassTableFile:
+        for list_name, names in self.class_lists.items():
+            missing = [n for n in names if n not in self.mobility]
+            if missing:
+                raise ValueError(f"class_lists.{list_name}: no mobility for {missing[:5]}")
+        for name in self.sizes:
+            if name not in self.mobility:
+                raise ValueError(f"sizes.{name}: not a class under 'mobility:'")
+        return self
+
+
 def _parse(data: object, source: str) -> ClassTable:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping with 'class_lists' and 'mobility'")
-    unknown = set(data) - {"class_lists", "mobility", "sizes"}
-    if unknown:
-        raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}")
-    lists_raw = data.get("class_lists") or {}
-    mob_raw = data.get("mobility") or {}
-    if not isinstance(lists_raw, dict) or not isinstance(mob_raw, dict):
-        raise ConfigError(f"{source}: 'class_lists' and 'mobility' must be mappings")
-    mobility: dict[str, Mobility] = {}
-    for name, value in mob_raw.items():
-        try:
-            mobility[str(name)] = Mobility.parse(str(value))
-        except ValueError as exc:
-            raise ConfigError(f"{source}: mobility.{name}: {exc}") from None
-    lists: dict[str, tuple[str, ...]] = {}
-    for list_name, names in lists_raw.items():
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-            raise ConfigError(f"{source}: class_lists.{list_name} must be a list of names")
-        missing = [n for n in names if n not in mobility]
-        if missing:
-            raise ConfigError(
-                f"{source}: class_lists.{list_name}: no mobility for {missing[:5]}"
-            )
-        lists[str(list_name)] = tuple(names)
-    sizes_raw = data.get("sizes") or {}
-    if not isinstance(sizes_raw, dict):
-        raise ConfigError(f"{source}: 'sizes' must be a mapping of class name to metres")
-    sizes: dict[str, float] = {}
-    for name, value in sizes_raw.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < float(value) <= 100:
-            raise ConfigError(f"{source}: sizes.{name}: expected a length in metres in (0, 100], got {value!r}")
-        if str(name) not in mobility:
-            raise ConfigError(f"{source}: sizes.{name}: not a class under 'mobility:'")
-        sizes[str(name)] = float(value)
-    return ClassTable(class_lists=lists, mobility=mobility, source=source, sizes=sizes)
+    f = load_model(ClassTableFile, data, source)
+    return ClassTable(class_lists=f.class_lists, mobility=f.mobility, source=source, sizes=f.sizes)
 
 
 def load_class_table(path: str | Path | None = None) -> ClassTable:

@@ -7,11 +7,25 @@ beside every output.
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
 from .errors import ConfigError
 
@@ -20,6 +34,17 @@ __all__ = [
     "FramesConfig",
     "SyncConfig",
     "SegmentationConfig",
+    "ModelSegmentationConfig",
+    "TopicSegmentation",
+    "FolderSegmentation",
+    "OnnxSegmentation",
+    "UltralyticsSegmentation",
+    "Sam3Segmentation",
+    "SelfieSegmentation",
+    "SEGMENTATION_BACKENDS",
+    "AnySegmentation",
+    "segmentation_config",
+    "OcclusionConfig",
     "PaintConfig",
     "BuildConfig",
     "RegistrationConfig",
@@ -35,8 +60,11 @@ __all__ = [
     "SimConfig",
     "load_yaml",
     "load_model",
+    "config_error",
     "merge_overrides",
 ]
+
+log = logging.getLogger(__name__)
 
 
 class _Model(BaseModel):
@@ -215,34 +243,210 @@ class SyncConfig(_Model):
 
 
 class SegmentationConfig(_Model):
-    """Where labels come from: a backend (see docs/segmentation.md) and its options."""
+    """What every backend's options share. Each built-in backend has its own model below, holding
+    only the options it uses; ``segmentation:`` in a config file is one of them, picked by ``backend``
+    (default ``topic``). See docs/segmentation.md.
+
+    A backend added with :func:`semmap.segment.base.register` subclasses this (or
+    :class:`ModelSegmentationConfig`) with ``backend: Literal["its-name"]``; it is passed to
+    :func:`~semmap.segment.base.create_segmenter` from Python (config files name built-in backends).
+    """
 
     backend: str = Field("topic", description="'topic': label images recorded in the bag; 'folder': label PNGs; "
                                               "'onnx', 'ultralytics', 'sam3', 'mediapipe-selfie': models")
-    class_list: str = Field("coco", description="class list (config/classes.yaml) naming label values "
-                                                "('topic' and 'folder' backends)")
     classes_file: Path | None = Field(None, description="a class table replacing config/classes.yaml")
-    model: Path | None = Field(None, description="weights: a .onnx file (onnx), a .pt file (ultralytics), a "
-                                                 "model folder (sam3), a .tflite file (mediapipe-selfie; "
-                                                 "default: $SEMMAP_DATA/models/selfie_segmentation.tflite)")
-    folder: Path | None = Field(None, description="'folder' backend: the folder of label PNGs (<stamp_ns>.png)")
+
+    @model_validator(mode="after")
+    def _backend_is_always_set(self) -> SegmentationConfig:
+        # backend picks the model: a dump of the set fields only (model_dump(exclude_unset=True))
+        # must name it, or it would load back as the default backend
+        self.__pydantic_fields_set__.add("backend")
+        return self
+
+    @property
+    def weights(self) -> Path | None:
+        """The weights file or folder the backend loads (None: none, or the backend's default)."""
+        return None
+
+
+class _ClassList(SegmentationConfig):
+    class_list: str = Field("coco", description="class list (config/classes.yaml) naming label values")
+
+
+class ModelSegmentationConfig(SegmentationConfig):
+    """The options of a backend that runs a model on the camera images."""
+
+    model: Path | None = Field(None, description="the weights")
     device: str = Field("cpu", description="'cpu', or 'cuda' / 'cuda:0' where the backend's runtime has it")
-    threads: int = Field(0, ge=0, description="CPU threads the model may use (0: the runtime's default)")
-    conf: float = Field(0.25, ge=0, le=1, description="keep instances scoring at least this")
-    iou: float = Field(0.7, ge=0, le=1, description="NMS: drop boxes overlapping a better one by more than this")
-    mask_threshold: float = Field(0.5, ge=0, le=1, description="a pixel is on a mask above this probability")
-    max_det: int = Field(300, gt=0, description="instances kept per image, best first")
-    imgsz: int | None = Field(None, gt=0, description="model input size (long side), px: default the model's "
-                                                      "(onnx/ultralytics metadata; sam3: the upper bound of "
-                                                      "the adaptive resolution)")
-    prompts: tuple[str, ...] | None = Field(None, description="sam3: one text prompt per class (default: the "
-                                                               "names of class_list); each must be a class name "
-                                                               "of config/classes.yaml")
-    memory_budget_mb: float = Field(4096.0, gt=0, description="sam3: peak activation memory the input "
-                                                               "resolution is scaled to fit, MB")
     cache_dir: Path | None = Field(None, description="on-disk mask cache: label images keyed by model and "
                                                      "image stamp, so rebuilding does not segment again "
                                                      "(null: no cache)")
+
+    @property
+    def weights(self) -> Path | None:
+        return self.model
+
+
+class _Threads(ModelSegmentationConfig):
+    threads: int = Field(0, ge=0, description="CPU threads the model may use (0: the runtime's default)")
+
+
+class _Detection(ModelSegmentationConfig):
+    conf: float = Field(0.25, ge=0, le=1, description="keep instances scoring at least this")
+    max_det: int = Field(300, gt=0, description="instances kept per image, best first")
+    imgsz: int | None = Field(None, gt=0, description="model input size (long side), px: default the model's "
+                                                      "(from its metadata)")
+
+
+class _Nms(_Detection):
+    iou: float = Field(0.7, ge=0, le=1, description="NMS: drop boxes overlapping a better one by more than this")
+
+
+class _MaskThreshold(ModelSegmentationConfig):
+    mask_threshold: float = Field(0.5, ge=0, le=1, description="a pixel is on a mask above this probability")
+
+
+class TopicSegmentation(_ClassList):
+    """``topic``: label images recorded in the bag (``topics.labels``), named by ``class_list``."""
+
+    backend: Literal["topic"] = "topic"
+
+
+class FolderSegmentation(_ClassList):
+    """``folder``: label PNGs named ``<stamp_ns>.png`` (``semmap segment`` writes them), named by the
+    folder's ``classes.json`` or else by ``class_list``."""
+
+    backend: Literal["folder"] = "folder"
+    folder: Path | None = Field(None, description="the folder of label PNGs (<stamp_ns>.png)")
+
+
+class OnnxSegmentation(_Nms, _MaskThreshold, _Threads, _ClassList):
+    """``onnx``: a YOLO-seg or semantic model exported to ONNX, run by onnxruntime. ``class_list``
+    names the classes of a model whose metadata only numbers them."""
+
+    backend: Literal["onnx"] = "onnx"
+    model: Path | None = Field(None, description="the .onnx file")
+
+
+class UltralyticsSegmentation(_Nms):
+    """``ultralytics``: a ``.pt`` segmentation model run by Ultralytics."""
+
+    backend: Literal["ultralytics"] = "ultralytics"
+    model: Path | None = Field(None, description="the .pt file")
+
+
+class Sam3Segmentation(_Detection, _MaskThreshold, _Threads, _ClassList):
+    """``sam3``: SAM 3 with one text prompt per class, from a local model folder."""
+
+    backend: Literal["sam3"] = "sam3"
+    model: Path | None = Field(None, description="the model folder (Sam3Model.save_pretrained)")
+    imgsz: int | None = Field(None, gt=0, description="upper bound of the adaptive input resolution, px "
+                                                      "(default: the model's own)")
+    prompts: tuple[str, ...] | None = Field(None, description="one text prompt per class (default: the names of "
+                                                               "class_list); each must be a class name of "
+                                                               "config/classes.yaml")
+    memory_budget_mb: float = Field(4096.0, gt=0, description="peak activation memory the input resolution is "
+                                                               "scaled to fit, MB")
+
+
+class SelfieSegmentation(_MaskThreshold, _Threads):
+    """``mediapipe-selfie``: MediaPipe's selfie model (people only), run by LiteRT on the CPU."""
+
+    backend: Literal["mediapipe-selfie"] = "mediapipe-selfie"
+    model: Path | None = Field(None, description="the .tflite file (default: "
+                                                 "$SEMMAP_DATA/models/selfie_segmentation.tflite)")
+
+
+#: backend name → its options; what ``segmentation:`` in a config file may be
+SEGMENTATION_BACKENDS: dict[str, type[SegmentationConfig]] = {
+    m.model_fields["backend"].default: m
+    for m in (TopicSegmentation, FolderSegmentation, OnnxSegmentation, UltralyticsSegmentation, Sam3Segmentation,
+              SelfieSegmentation)
+}
+
+
+def _is_default(key: str, value: Any) -> bool:
+    """Whether ``value`` is what every backend having option ``key`` takes by default."""
+    owners = [m.model_fields[key] for m in SEGMENTATION_BACKENDS.values() if key in m.model_fields]
+    return value is None or all(f.default == value for f in owners)
+
+
+def _one_backends_keys(data: Any) -> Any:
+    """Keep only the chosen backend's keys of a ``segmentation:`` mapping.
+
+    Before one model per backend, ``segmentation:`` held every backend's options (and map folders'
+    config.yaml dumps them all), so another backend's key is ignored, not an error. It is ignored
+    silently when it holds its default (as those dumps do), with a warning naming it otherwise: it
+    was set to do something, and does nothing here. A key no backend has stays an error.
+    """
+    if isinstance(data, SegmentationConfig):
+        return data
+    if not isinstance(data, dict):
+        raise PydanticCustomError("dict_type", "expected a mapping: backend and its options")
+    backend = data.get("backend", "topic")
+    model = SEGMENTATION_BACKENDS.get(backend) if isinstance(backend, str) else None
+    if model is None:
+        known = ", ".join(sorted(SEGMENTATION_BACKENDS))
+        raise PydanticCustomError("unknown_backend", "unknown backend {backend} (available: {known})",
+                                  {"backend": repr(backend), "known": known})
+    other = {k for m in SEGMENTATION_BACKENDS.values() for k in m.model_fields} - set(model.model_fields)
+    ignored = [k for k in data if k in other]
+    if not ignored:
+        return data
+    loud = [k for k in ignored if not _is_default(k, data[k])]
+    if loud:
+        log.warning("segmentation: %s ignored: not %s of the %r backend", ", ".join(loud),
+                    "an option" if len(loud) == 1 else "options", backend)
+    return {k: v for k, v in data.items() if k not in ignored}
+
+
+def _backend_tag(v: Any) -> str | None:
+    if isinstance(v, dict):
+        return str(v.get("backend", "topic"))
+    return getattr(v, "backend", None) if isinstance(v, SegmentationConfig) else None
+
+
+#: ``segmentation:`` of a config file: one of the built-in backends' models, picked by ``backend``
+AnySegmentation = Annotated[
+    Union[tuple(Annotated[m, Tag(name)] for name, m in SEGMENTATION_BACKENDS.items())],  # type: ignore[valid-type]
+    Discriminator(_backend_tag),
+    BeforeValidator(_one_backends_keys),
+]
+
+
+class OcclusionConfig(_Model):
+    """The occlusion filter (docs/occlusion.md): points on a mask that nearer points of the same mask hide
+    from the camera become unknown instead of taking the mask's label. Passed as is to
+    :func:`semmap.paint.occlusion.hidden_points`."""
+
+    filter: bool = Field(True, description="on or off (off: every point on a mask takes the mask's label)")
+    depth_margin: float = Field(0.25, ge=0, description="a point is hidden only by points at least this much "
+                                                        "nearer the camera, m")
+    depth_margin_rel: float = Field(0.03, ge=0, le=1, description="plus this share of the point's distance from "
+                                                                  "the camera")
+    ray_width_deg: float = Field(0.5, ge=0, description="added to each occluding point's footprint (one beam "
+                                                        "spacing), deg")
+    max_gap: float = Field(2.2, ge=0, description="nearer points of the same mask up to this far apart hide the "
+                                                  "points between them when the mask joins them in the image, m "
+                                                  "(0: off)")
+    edge_px: float = Field(8.0, ge=0, description="a mask may spill this many pixels past its object's outermost "
+                                                  "point; points there behind the object are hidden too, px (0: off)")
+    overhang: float = Field(0.3, ge=0, description="an object may reach this far to the side of its outermost "
+                                                   "point seen at LiDAR height (a seat over chair legs), m (0: off)")
+    line_step: float = Field(0.06, ge=0, description="neighbouring scan points closer than this are one surface; "
+                                                     "a surface that runs off the mask is background behind it, m "
+                                                     "(0: off)")
+    line_depth_margin: float = Field(0.15, ge=0, description="such background is hidden by mask points at least "
+                                                             "this much nearer, m")
+    object_extent: float = Field(1.5, ge=0, description="an object spans at most this many times its class's "
+                                                        "typical size (class table, sizes:); a point of its mask "
+                                                        "farther than that from a nearer point of the mask, behind "
+                                                        "it, is hidden (0: off)")
+
+    @property
+    def ray_width(self) -> float:
+        """``ray_width_deg`` in radians."""
+        return math.radians(self.ray_width_deg)
 
 
 class PaintConfig(_Model):
@@ -253,34 +457,28 @@ class PaintConfig(_Model):
         "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
                                "'no_return' clears free space to the range limit, for drivers such as "
                                "Hokuyo URG that report 'nothing seen' as small error codes")
-    occlusion_filter: bool = Field(True, description="points on a mask that nearer points of the same mask hide "
-                                                     "from the camera become unknown instead of taking the "
-                                                     "mask's label (README, 'The occlusion filter')")
-    occlusion_depth_margin: float = Field(0.25, ge=0, description="occlusion filter: a point is hidden only by "
-                                                                  "points at least this much nearer the camera, m")
-    occlusion_depth_margin_rel: float = Field(0.03, ge=0, le=1, description="occlusion filter: plus this share of "
-                                                                            "the point's distance from the camera")
-    occlusion_ray_width_deg: float = Field(0.5, ge=0, description="occlusion filter: added to each occluding "
-                                                                  "point's footprint (one beam spacing), deg")
-    occlusion_max_gap: float = Field(2.2, ge=0, description="occlusion filter: nearer points of the same mask up to "
-                                                            "this far apart hide the points between them when the "
-                                                            "mask joins them in the image, m (0: off)")
-    occlusion_edge_px: float = Field(8.0, ge=0, description="occlusion filter: a mask may spill this many pixels "
-                                                            "past its object's outermost point; points there "
-                                                            "behind the object are hidden too, px (0: off)")
-    occlusion_overhang: float = Field(0.3, ge=0, description="occlusion filter: an object may reach this far to "
-                                                             "the side of its outermost point seen at LiDAR "
-                                                             "height (a seat over chair legs), m (0: off)")
-    occlusion_line_step: float = Field(0.06, ge=0, description="occlusion filter: neighbouring scan points closer "
-                                                               "than this are one surface; a surface that runs "
-                                                               "off the mask is background behind it, m (0: off)")
-    occlusion_line_depth_margin: float = Field(0.15, ge=0, description="occlusion filter: such background is hidden "
-                                                                      "by mask points at least this much nearer, m")
-    occlusion_object_extent: float = Field(1.5, ge=0, description="occlusion filter: an object spans at most this "
-                                                                  "many times its class's typical size (class "
-                                                                  "table, sizes:); a point of its mask farther "
-                                                                  "than that from a nearer point of the mask, "
-                                                                  "behind it, is hidden (0: off)")
+    occlusion: OcclusionConfig = OcclusionConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _flat_occlusion_keys(cls, data: Any) -> Any:
+        # Before the nested section the filter's settings were flat keys, paint.occlusion_<name>
+        # (map folders' config.yaml dumped them all); they still load. A nested key given too wins:
+        # it is the newer spelling, which overrides (e.g. from the command line) use.
+        if not isinstance(data, dict):
+            return data
+        flat = [k for k in data if isinstance(k, str) and k.startswith("occlusion_")
+                and k.removeprefix("occlusion_") in OcclusionConfig.model_fields]
+        nested = data.get("occlusion")
+        if not flat or not (nested is None or isinstance(nested, dict)):
+            return data
+        out = {k: v for k, v in data.items() if k not in flat}
+        out["occlusion"] = {**{k.removeprefix("occlusion_"): data[k] for k in flat}, **(nested or {})}
+        return out
+
+    def with_occlusion_filter(self, on: bool) -> PaintConfig:
+        """This config with the occlusion filter switched on or off (its other settings kept)."""
+        return self.model_copy(update={"occlusion": self.occlusion.model_copy(update={"filter": on})})
 
 
 class EkfConfig(_Model):
@@ -436,7 +634,7 @@ class BuildConfig(_Model):
     calibration: Path | None = Field(None, description="calibration file; relative paths are relative to the "
                                                          "config file (default: calibration.yaml beside the bag)")
     sync: SyncConfig = SyncConfig()
-    segmentation: SegmentationConfig = SegmentationConfig()
+    segmentation: AnySegmentation = TopicSegmentation()
     paint: PaintConfig = PaintConfig()
     registration: RegistrationConfig = RegistrationConfig()
     grid: GridConfig = GridConfig()
@@ -468,7 +666,29 @@ def merge_overrides(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any
     return out
 
 
-def load_model(model: type[_Model], data: Any, source: str) -> Any:
+def _where(loc: tuple[int | str, ...], kind: str) -> str:
+    """A field's dotted name from a validation error's location, as a user writes it in YAML:
+    without the backend name pydantic adds after ``segmentation``."""
+    out = [x for i, x in enumerate(loc)
+           if not (x in SEGMENTATION_BACKENDS and (i == 0 or loc[i - 1] == "segmentation"))]
+    if kind == "unknown_backend":
+        out.append("backend")
+    return ".".join(str(x) for x in out)
+
+
+def config_error(exc: ValidationError, source: str) -> ConfigError:
+    """One line naming the source, the first bad field and what is wrong with it."""
+    err = exc.errors()[0]
+    loc = _where(tuple(err["loc"]), err["type"])
+    msg = err["msg"]
+    if err["type"] == "extra_forbidden":
+        msg = "unknown key"
+    elif err["type"] == "value_error":  # our own check: its message says what is wrong, and may name the field
+        msg = msg.removeprefix("Value error, ")
+    return ConfigError(f"{source}: {loc}: {msg}" if loc else f"{source}: {msg}")
+
+
+def load_model(model: type[BaseModel], data: Any, source: str) -> Any:
     """Validate ``data`` into ``model``; the error names the source and the first bad field."""
     if data is None:
         data = {}
@@ -477,9 +697,16 @@ def load_model(model: type[_Model], data: Any, source: str) -> Any:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"]) or "<root>"
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        raise ConfigError(f"{source}: {loc}: {msg}") from None
+        raise config_error(exc, source) from None
+
+
+_SEGMENTATION: TypeAdapter[SegmentationConfig] = TypeAdapter(AnySegmentation)
+
+
+def segmentation_config(data: Any, source: str = "segmentation") -> SegmentationConfig:
+    """A ``segmentation:`` mapping (or a dump of one) validated into its backend's model, as a config
+    file's section is: ``backend`` picks the model (default ``topic``)."""
+    try:
+        return _SEGMENTATION.validate_python({} if data is None else data)
+    except ValidationError as exc:
+        raise config_error(exc, source) from None

@@ -328,13 +328,13 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
         counts=CountsSummary(**run.counts, frames=run.frame_counts.get("frames", 0),
                              bad_frames=run.frame_counts.get("bad_frames", 0)),
         painting=PaintingSummary(
-            class_list=cfg.segmentation.class_list if class_names else None,
+            class_list=getattr(cfg.segmentation, "class_list", None) if class_names else None,
             backend=cfg.segmentation.backend if class_names else None,
             scans_painted=ps.painted,
             readings_below_range_min_fraction=round(ps.below_range_min / max(ps.beams, 1), 4),
             points_in_view_fraction=round(ps.points_in_view / max(ps.points_total, 1), 4),
             occlusion_filter=OcclusionSummary(
-                on=cfg.paint.occlusion_filter,
+                on=cfg.paint.occlusion.filter,
                 points_relabelled=ps.occlusion_relabelled,
                 points_relabelled_per_painted_scan=round(ps.occlusion_relabelled / max(ps.painted, 1), 2),
                 points_relabelled_max_per_scan=ps.occlusion_max_per_scan,

@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import GridConfig, RegistrationConfig, SegmentationConfig
+from .config import GridConfig, RegistrationConfig, SegmentationConfig, segmentation_config
 from .errors import InternalError, SemmapError, WorkerError
 from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
@@ -439,7 +439,7 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgty
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
             free = list(range(n))
-        frames = FrameReader(Path(bag), topic, msgtype, SegmentationConfig.model_validate(seg_cfg), counts)
+        frames = FrameReader(Path(bag), topic, msgtype, segmentation_config(seg_cfg), counts)
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in frames:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semmap.config import GridConfig, RegistrationConfig, SegmentationConfig
+from semmap.config import GridConfig, RegistrationConfig, TopicSegmentation
 from semmap.errors import InternalError
 from semmap.workers import FrameWorker, MapperWorkers
 
@@ -38,7 +38,7 @@ def tour(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("faults")
     t = simulate(replace(demo().world, duration_s=12.0), root / "demo", seed=2)
-    segment_source(t.out, root / "seg", SegmentationConfig(backend="topic"), overlays=False)
+    segment_source(t.out, root / "seg", TopicSegmentation(), overlays=False)
     cfg = root / "worker.yaml"
     cfg.write_text(f"segmentation:\n  backend: folder\n  folder: {root / 'seg' / 'labels'}\n")
     return t.out, cfg
@@ -241,7 +241,7 @@ def test_a_bug_in_a_worker_is_reported_as_a_bug_with_its_traceback():
 def test_a_bug_in_the_frame_worker_is_reported_as_a_bug(tour):
     bag, _ = tour
     frames = FrameWorker(bag / "demo.bag", "/scan", "sensor_msgs/msg/Image",  # scans are not images
-                         SegmentationConfig(backend="topic"), (480, 640))
+                         TopicSegmentation(), (480, 640))
     try:
         with pytest.raises(InternalError, match="in the frames worker: AttributeError"):
             frames.wait_ready()

@@ -102,10 +102,13 @@ def test_segmentation_files_in_a_config_are_relative_to_it(tmp_path):
 
     site = tmp_path / "site"
     site.mkdir()
-    (site / "build.yaml").write_text("segmentation: {backend: folder, folder: labels, cache_dir: /abs/cache}\n")
+    (site / "build.yaml").write_text("segmentation: {backend: folder, folder: labels}\n")
     cfg, base = load_build_config(site / "build.yaml")
     assert cfg.segmentation.folder == site.resolve() / "labels"
-    assert str(cfg.segmentation.cache_dir) == "/abs/cache"
+    (site / "onnx.yaml").write_text("segmentation: {backend: onnx, model: m.onnx, cache_dir: /abs/cache}\n")
+    onnx, _ = load_build_config(site / "onnx.yaml")
+    assert onnx.segmentation.model == site.resolve() / "m.onnx"
+    assert str(onnx.segmentation.cache_dir) == "/abs/cache"
     # a path given as an override (the command line) stays as given: relative to the working directory
     cfg, _ = load_build_config(site / "build.yaml", {"segmentation": {"folder": "other"}})
     assert str(cfg.segmentation.folder) == "other"

@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from semmap.paint.occlusion import OcclusionParams, hidden_points
+from semmap.config import OcclusionConfig
+from semmap.paint.occlusion import hidden_points
 
 W, H, F = 640, 480, 320.0  # image size, focal length (px)
 ROW = 300  # the pixel row every point lands on (one row is enough: the filter reads rows)
@@ -35,7 +36,7 @@ def scene(points, label_of_column, beam_spacing_deg=0.25):
     return xy, labels, uv, footprint, img
 
 
-def run(points, label_of_column, params=OcclusionParams(), **kw):
+def run(points, label_of_column, params=OcclusionConfig(), **kw):
     xy, labels, uv, footprint, img = scene(points, label_of_column, **kw)
     targets = labels > 0
     return hidden_points(xy, np.zeros(2), labels, uv, targets, footprint, img, params), labels
@@ -112,7 +113,7 @@ def test_a_wall_point_on_the_mask_between_objects_too_far_apart_is_left_alone():
     # two people 2.6 m apart (beyond max_gap): the wall between them stays as painted
     a, b = person_at(3.0, n=7, y0=-1.3), person_at(3.0, n=7, y0=1.3)
     wall = wall_at(6.0, -0.3, 0.3)
-    hidden, labels = run(a + b + wall, lambda c: PERSON, OcclusionParams(line_step=0))
+    hidden, labels = run(a + b + wall, lambda c: PERSON, OcclusionConfig(line_step=0))
     assert not hidden[14:].any()
 
 
@@ -165,7 +166,7 @@ def test_the_depth_margin_decides_how_far_behind_counts_as_hidden(margin):
     person = person_at(2.0)
     behind = wall_at(2.45, -0.1, 0.1)  # 0.45 m behind the person
     u = column(np.array(person))
-    params = OcclusionParams(depth_margin=margin, depth_margin_rel=0.0)
+    params = OcclusionConfig(depth_margin=margin, depth_margin_rel=0.0)
     hidden, _ = run(person + behind, mask_between(u.min(), u.max()), params)
     assert hidden[len(person):].all() == (margin < 0.45)
 
@@ -246,11 +247,11 @@ def test_a_cabinet_seen_under_a_bed_from_across_the_room_loses_the_bed_label():
     on_bed = is_cab & (labels == BED)
     assert on_bed.sum() > 10 and (on_bed == is_cab).all()
     extent = np.array([np.inf, np.inf, 0.75, 1.5 * 2.3])  # per label value: none, person, chair, bed
-    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams(), extent)
+    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionConfig(), extent)
     assert hidden[on_bed].all()
     assert not hidden[pts[:, 0] < 3.1].any()  # the bed's leg keeps its label
     # without the object's extent nothing hides the cabinet
-    before = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams())
+    before = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionConfig())
     assert not before[on_bed].any()
 
 
@@ -264,6 +265,6 @@ def test_a_far_chair_seen_between_the_legs_of_a_near_one_keeps_its_label():
     u = column(np.array([(2.0, -0.25), (2.0, 0.25)]))
     xy, labels, uv, footprint, img = scene(pts, mask_between(u.min(), u.max(), CHAIR))
     extent = np.array([np.inf, np.inf, 0.75, 1.5 * 2.3])
-    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionParams(), extent)
+    hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionConfig(), extent)
     is_far = (pts[:, 0] > 3.9) & (pts[:, 0] < 4.1)
     assert (labels[is_far] == CHAIR).all() and not hidden[is_far].any()

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from semmap.classes import load_class_table
-from semmap.config import GridConfig, PaintConfig, SyncConfig
+from semmap.config import GridConfig, OcclusionConfig, PaintConfig, SyncConfig
 from semmap.geometry import (
     is_rotation,
     matrix_to_se2,
@@ -270,8 +270,8 @@ def test_the_painter_labels_exactly_the_returns_that_land_in_the_image(calib, se
     bands = (cam.width + 7) // 8
     label = np.tile((np.arange(cam.width) // 8 + 1).astype(np.uint16), (cam.height, 1))
     names = tuple(["chair"] * bands)
-    painter = Painter(np.eye(4), calib, names, load_class_table(), PaintConfig(occlusion_filter=False),
-                      SyncConfig(), 10.0)
+    painter = Painter(np.eye(4), calib, names, load_class_table(),
+                      PaintConfig(occlusion=OcclusionConfig(filter=False)), SyncConfig(), 10.0)
     painted = painter.paint(scan, None, Segmentation(0, label, names)).painted
 
     hit = np.isfinite(ranges) & (ranges >= 0.1)

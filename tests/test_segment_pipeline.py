@@ -4,15 +4,23 @@ every number is known."""
 
 import csv
 import json
+from typing import Literal
 
 import cv2
 import numpy as np
 import pytest
 
 from semmap.cli.main import main
-from semmap.config import SegmentationConfig
+from semmap.config import ModelSegmentationConfig, OnnxSegmentation, SegmentationConfig
 from semmap.records import Image, Segmentation
 from semmap.segment import base
+
+
+class _CountingConfig(ModelSegmentationConfig):
+    """A plugin backend's options: its own model, as each built-in backend has."""
+
+    backend: Literal["test-counting"] = "test-counting"
+    conf: float = 0.25
 
 
 class _Counting:
@@ -53,7 +61,7 @@ def _img(stamp, value=200):
 
 
 def test_mask_cache_serves_a_second_run_without_segmenting(tmp_path, counting_backend):
-    cfg = SegmentationConfig(backend="test-counting", cache_dir=tmp_path / "cache")
+    cfg = _CountingConfig(cache_dir=tmp_path / "cache")
     seg = base.create_segmenter(cfg)
     first = [seg.segment(_img(s)) for s in (1, 2, 3)]
     seg.close()
@@ -81,9 +89,9 @@ def test_cache_key_follows_the_weights_file(tmp_path):
 
     w = tmp_path / "m.onnx"
     w.write_bytes(b"one")
-    k1 = model_key(model_identity(SegmentationConfig(backend="onnx", model=w), tmp_path))
+    k1 = model_key(model_identity(OnnxSegmentation(model=w), tmp_path))
     w.write_bytes(b"two")
-    k2 = model_key(model_identity(SegmentationConfig(backend="onnx", model=w), tmp_path))
+    k2 = model_key(model_identity(OnnxSegmentation(model=w), tmp_path))
     assert k1 != k2 and k1.startswith("onnx-")
 
 
@@ -247,8 +255,7 @@ def test_eval_seg_compares_backends_side_by_side(tmp_path, counting_backend):
 
     data = tmp_path / "data"
     _write_dataset(data)
-    res = evaluate_segmentation(data, [SegmentationConfig(backend="test-counting"),
-                                       SegmentationConfig(backend="test-counting", conf=0.9)],
+    res = evaluate_segmentation(data, [_CountingConfig(), _CountingConfig(conf=0.9)],
                                 labels=["a", "b"])
     assert [b.label for b in res.backends] == ["a", "b"]
     assert all(b.images == 3 and b.fps > 0 for b in res.backends)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from semmap.config import SegmentationConfig
+from semmap.config import Sam3Segmentation
 from semmap.records import Image
 
 pytest.importorskip("torch")
@@ -32,7 +32,7 @@ def _frame(seed=0, stamp=1):
 def test_cached_embedding_gives_the_same_masks_as_the_uncached_path(tiny_sam3):
     from semmap.segment.base import create_segmenter
 
-    seg = create_segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, conf=0.0))
+    seg = create_segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS, conf=0.0))
     assert seg.names == PROMPTS
     img = _frame()
     cached = seg.segment(img)
@@ -47,7 +47,7 @@ def test_cached_embedding_gives_the_same_masks_as_the_uncached_path(tiny_sam3):
 def test_the_image_is_encoded_once_per_frame_and_the_decoder_once_per_prompt(tiny_sam3):
     from semmap.segment.sam3 import Sam3Segmenter
 
-    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS))
+    seg = Sam3Segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS))
     a = seg.segment(_frame(0, 1))
     b = seg.segment(_frame(0, 1))  # the same frame again: its embedding is reused
     seg.segment(_frame(1, 2))
@@ -92,7 +92,7 @@ def _full_resolution_reference(seg, img):
 def test_painting_at_mask_resolution_equals_upsampling_every_mask_first(tiny_sam3, mask_threshold, max_det):
     from semmap.segment.sam3 import Sam3Segmenter
 
-    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, conf=0.0,
+    seg = Sam3Segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS, conf=0.0,
                                            mask_threshold=mask_threshold, max_det=max_det))
     img = _frame(3)
     res = seg.segment(img)
@@ -108,7 +108,7 @@ def test_a_prompt_that_keeps_no_query_skips_the_mask_head(tiny_sam3):
 
     from semmap.segment.sam3 import Sam3Segmenter
 
-    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, conf=1.0))
+    seg = Sam3Segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS, conf=1.0))
     img = _frame()
     res = seg.segment(img)
     assert seg.stats["decoder_runs"] == len(PROMPTS) and seg.stats["mask_heads"] == 0
@@ -132,7 +132,7 @@ def test_input_resolution_scales_to_the_memory_budget(tiny_sam3):
 
     sides = []
     for budget in (1000.0, 3.0, 1.0, 0.5):
-        seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=tiny_sam3, prompts=PROMPTS, imgsz=448,
+        seg = Sam3Segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS, imgsz=448,
                                                memory_budget_mb=budget))
         side = seg.input_side
         assert side % 28 == 0 and seg.activation_mb(side) <= budget or side == 28
@@ -147,4 +147,4 @@ def test_missing_model_folder_is_a_config_error(tmp_path):
     from semmap.segment.base import create_segmenter
 
     with pytest.raises(ConfigError, match="segmentation.model"):
-        create_segmenter(SegmentationConfig(backend="sam3", model=tmp_path / "nope"))
+        create_segmenter(Sam3Segmentation(model=tmp_path / "nope"))

@@ -4,7 +4,7 @@ protocol, person class): about 0.57 IoU over the 61 images that contain people."
 import numpy as np
 import pytest
 
-from semmap.config import SegmentationConfig
+from semmap.config import SelfieSegmentation
 from semmap.records import Image
 
 pytest.importorskip("ai_edge_litert")
@@ -13,7 +13,7 @@ pytest.importorskip("ai_edge_litert")
 def test_selfie_person_iou_on_coco128(data_dir, tmp_path):
     from semmap.segment.evaluate import evaluate_segmentation, write_eval_outputs
 
-    cfg = SegmentationConfig(backend="mediapipe-selfie", model=data_dir / "models" / "selfie_segmentation.tflite")
+    cfg = SelfieSegmentation(model=data_dir / "models" / "selfie_segmentation.tflite")
     res = evaluate_segmentation(data_dir / "coco128-seg", [cfg])
     b = res.backends[0]
     person = b.per_class()["person"]
@@ -33,8 +33,7 @@ def test_selfie_labels_are_person_with_its_probability(data_dir):
 
     from semmap.segment.base import create_segmenter
 
-    seg = create_segmenter(SegmentationConfig(backend="mediapipe-selfie",
-                                              model=data_dir / "models" / "selfie_segmentation.tflite"))
+    seg = create_segmenter(SelfieSegmentation(model=data_dir / "models" / "selfie_segmentation.tflite"))
     assert seg.names == ("person",)
     img = cv2.imread(str(data_dir / "coco128-seg" / "images" / "train2017" / "000000000061.jpg"))[:, :, ::-1]
     res = seg.segment(Image(61, "cam", np.ascontiguousarray(img), "rgb8"))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semmap.config import SegmentationConfig
+from semmap.config import OnnxSegmentation
 from semmap.records import Image
 from semmap.segment.yolo import decode_detections, letterbox, nms, yolo_seg_postprocess
 
@@ -162,7 +162,7 @@ def test_onnx_backend_decodes_an_instance_model_with_names_from_metadata(tmp_pat
     pytest.importorskip("onnxruntime")
     from semmap.segment.base import create_segmenter
 
-    seg = create_segmenter(SegmentationConfig(backend="onnx", model=_instance_model(tmp_path / "m.onnx")))
+    seg = create_segmenter(OnnxSegmentation(model=_instance_model(tmp_path / "m.onnx")))
     assert seg.names == ("person", "chair")
     res = seg.segment(Image(7, "cam", np.zeros((32, 64, 3), np.uint8), "rgb8"))
     assert res.stamp_ns == 7 and res.label.shape == (32, 64)
@@ -174,7 +174,7 @@ def test_onnx_backend_reads_a_semantic_class_map(tmp_path):
     pytest.importorskip("onnxruntime")
     from semmap.segment.base import create_segmenter
 
-    seg = create_segmenter(SegmentationConfig(backend="onnx", model=_semantic_model(tmp_path / "s.onnx")))
+    seg = create_segmenter(OnnxSegmentation(model=_semantic_model(tmp_path / "s.onnx")))
     assert seg.names == ("person", "chair")  # background is label 0
     img = np.zeros((16, 16, 3), np.uint8)
     img[:, :8, 0] = 255  # left: red → person
@@ -189,9 +189,9 @@ def test_onnx_backend_errors_name_the_config_key(tmp_path):
     from semmap.segment.base import create_segmenter
 
     with pytest.raises(ConfigError, match="segmentation.model"):
-        create_segmenter(SegmentationConfig(backend="onnx"))
+        create_segmenter(OnnxSegmentation())
     with pytest.raises(ConfigError, match="no such file"):
-        create_segmenter(SegmentationConfig(backend="onnx", model=tmp_path / "missing.onnx"))
+        create_segmenter(OnnxSegmentation(model=tmp_path / "missing.onnx"))
 
 
 @pytest.mark.skipif(not os.environ.get("SEMMAP_YOLO_ONNX"), reason="set SEMMAP_YOLO_ONNX to an exported "
@@ -200,7 +200,7 @@ def test_a_real_yolo11n_seg_export_has_the_documented_outputs():
     pytest.importorskip("onnxruntime")
     from semmap.segment.base import create_segmenter
 
-    seg = create_segmenter(SegmentationConfig(backend="onnx", model=Path(os.environ["SEMMAP_YOLO_ONNX"])))
+    seg = create_segmenter(OnnxSegmentation(model=Path(os.environ["SEMMAP_YOLO_ONNX"])))
     assert len(seg.names) == 80 and seg.names[0] == "person"
     sess = seg._load()
     outs = {o.name: o.shape for o in sess.get_outputs()}

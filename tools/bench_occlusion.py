@@ -216,7 +216,7 @@ def score_maps(tour: Path, tmp: Path, tag: str) -> dict:
     for on in (False, True):
         mapdir = tmp / f"{tag}-{'on' if on else 'off'}"
         t = time.perf_counter()
-        run_build(tour, mapdir, {"paint": {"occlusion_filter": on}})
+        run_build(tour, mapdir, {"paint": {"occlusion": {"filter": on}}})
         s = score_simulated(tour, mapdir)
         out["on" if on else "off"] = {k: s[k] for k in ("f1", "recall", "ghost_rate", "semi_precision",
                                                           "semi_recall", "ate_rmse_m")}
@@ -284,7 +284,7 @@ def main() -> int:
               f"{r['survivors_with_nearer_point_on_ray']} | {r['survivor_range_median_m']:.2f} | {lost} | "
               f"{r['correct_lost_with_nearer_point_on_ray']} |")
     if not args.no_map:
-        print("\nThe cleaned map, filter off → on (`paint.occlusion_filter`; EKF fusion; scored as in "
+        print("\nThe cleaned map, filter off → on (`paint.occlusion.filter`; EKF fusion; scored as in "
               "tools/bench_build.py):\n")
         print("| scenario | LiDAR y (m) | occupied F1 | occupied recall | ghost rate | semi-static precision | "
               "semi-static recall |")

@@ -133,11 +133,11 @@ def sam3_kept(sam3_dir: Path, rgb: np.ndarray, conf: float) -> tuple[float, int]
     import torch
 
     from semmap.classes import load_class_table
-    from semmap.config import SegmentationConfig
+    from semmap.config import Sam3Segmentation
     from semmap.segment.sam3 import Sam3Segmenter
 
-    seg = Sam3Segmenter(SegmentationConfig(backend="sam3", model=sam3_dir,
-                                           prompts=load_class_table(None).names("coco")[:10], conf=conf))
+    seg = Sam3Segmenter(Sam3Segmentation(model=sam3_dir,
+                                         prompts=load_class_table(None).names("coco")[:10], conf=conf))
     try:
         with torch.inference_mode():
             embed = seg.image_embedding(rgb)
@@ -149,12 +149,12 @@ def sam3_kept(sam3_dir: Path, rgb: np.ndarray, conf: float) -> tuple[float, int]
 
 def sam3_scaling(sam3_dir: Path, rgb: np.ndarray, args, results: dict) -> None:
     from semmap.classes import load_class_table
-    from semmap.config import SegmentationConfig
+    from semmap.config import Sam3Segmentation
     from semmap.segment.sam3 import _PRESETS, flop_split, random_config
 
     coco = load_class_table(None).names("coco")
     native = _PRESETS["small"]["side"]
-    kept, queries = sam3_kept(sam3_dir, rgb, SegmentationConfig().conf)
+    kept, queries = sam3_kept(sam3_dir, rgb, Sam3Segmentation().conf)
     settings = [("default conf, every prompt keeps queries", {}),
                 ("conf 1: no prompt keeps a query", {"conf": 1.0}),
                 (f"half side ({native // 2} px), default conf", {"imgsz": native // 2}),
@@ -162,13 +162,13 @@ def sam3_scaling(sam3_dir: Path, rgb: np.ndarray, args, results: dict) -> None:
     runs = max(5, args.runs // 5)
     print(f"\nSAM 3 prompt scaling, `small` preset, 1 vs 10 prompts on alternate frames ({runs} pairs; random "
           f"weights keep {kept:.1f} of {queries} queries per prompt at the default conf "
-          f"{SegmentationConfig().conf}):\n")
+          f"{Sam3Segmentation().conf}):\n")
     print("| setting | input | 1 prompt, ms | 10 prompts, ms | ratio of the medians | **ratio, median of the pairs** "
           "| mask heads run per prompt |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     results["sam3_scaling"] = []
     for label, extra in settings:
-        cfgs = [SegmentationConfig(backend="sam3", model=sam3_dir, prompts=coco[:n], threads=args.threads, **extra)
+        cfgs = [Sam3Segmentation(model=sam3_dir, prompts=coco[:n], threads=args.threads, **extra)
                 for n in (1, 10)]
         r = sam3_ratio(cfgs[0], cfgs[1], rgb, runs)
         r["setting"] = label
@@ -224,7 +224,13 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
 
-    from semmap.config import SegmentationConfig
+    from semmap.config import (
+        OnnxSegmentation,
+        Sam3Segmentation,
+        SegmentationConfig,
+        SelfieSegmentation,
+        UltralyticsSegmentation,
+    )
 
     rgb = frame_640x480(args.data)
     results: dict = {"date": date.today().isoformat(), "machine": machine(), "fps": {}, "notes": []}
@@ -233,11 +239,11 @@ def main() -> int:
     candidates: list[tuple[str, SegmentationConfig, int]] = []
     selfie = args.data / "models" / "selfie_segmentation.tflite"
     if selfie.is_file():
-        candidates.append(("mediapipe-selfie", SegmentationConfig(backend="mediapipe-selfie", model=selfie, threads=args.threads),
+        candidates.append(("mediapipe-selfie", SelfieSegmentation(model=selfie, threads=args.threads),
                            args.runs * 3))
     if args.yolo_onnx:
-        candidates.append((f"onnx ({args.yolo_onnx.name})", SegmentationConfig(backend="onnx", model=args.yolo_onnx,
-                                                                             threads=args.threads),
+        candidates.append((f"onnx ({args.yolo_onnx.name})", OnnxSegmentation(model=args.yolo_onnx,
+                                                                           threads=args.threads),
                            args.runs))
     else:
         results["notes"].append("onnx: no --yolo-onnx / $SEMMAP_YOLO_ONNX given")
@@ -251,13 +257,13 @@ def main() -> int:
         coco = load_class_table(None).names("coco")
         for n in (1, 80):
             candidates.append((f"sam3 (small, {n} prompt{'s' if n > 1 else ''})",
-                               SegmentationConfig(backend="sam3", model=sam3_dir, prompts=coco[:n],
-                                                  threads=args.threads),
+                               Sam3Segmentation(model=sam3_dir, prompts=coco[:n],
+                                                threads=args.threads),
                                max(3, args.runs // 5)))
     except Exception as exc:  # noqa: BLE001 - report what could not run
         results["notes"].append(f"sam3: {type(exc).__name__}: {exc}")
     if args.ultralytics_pt:
-        candidates.append(("ultralytics", SegmentationConfig(backend="ultralytics", model=args.ultralytics_pt),
+        candidates.append(("ultralytics", UltralyticsSegmentation(model=args.ultralytics_pt),
                            args.runs))
     else:
         try:

@@ -93,7 +93,7 @@ def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None 
     seg = cfg.segmentation
     over = (overrides or {}).get("segmentation") or {}
     fixed = {k: base / Path(getattr(seg, k)).expanduser() for k in ("model", "folder", "cache_dir", "classes_file")
-             if k in file_seg and k not in over and getattr(seg, k) is not None
+             if k in type(seg).model_fields and k in file_seg and k not in over and getattr(seg, k) is not None
              and not Path(getattr(seg, k)).expanduser().is_absolute()}
     if fixed:
         cfg = cfg.model_copy(update={"segmentation": seg.model_copy(update=fixed)})

@@ -249,7 +249,7 @@ def _occlusion_line(o: dict | None) -> str:
     if not o:
         return ""
     if not o["on"]:
-        return "Occlusion filter: off (`paint.occlusion_filter: false`)."
+        return "Occlusion filter: off (`paint.occlusion.filter: false`)."
     return (f"Occlusion filter: {o['points_relabelled']} points on a mask the camera could not see became unknown "
             f"({o['points_relabelled_per_painted_scan']} per painted scan, at most "
             f"{o['points_relabelled_max_per_scan']} in one scan; {o['scans_with_relabelled_points']} scans).")

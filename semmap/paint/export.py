@@ -85,7 +85,7 @@ def iter_painted(
 
     Scans are paired with images and odometry by the same scan stream as ``semmap build``
     (:class:`~semmap.paint.stream.ScanStream`). The filter's parameters come from the config
-    (``paint.occlusion_*``); the filtered painting uses them even where the config switches the
+    (``paint.occlusion``); the filtered painting uses them even where the config switches the
     filter off.
     """
     tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
@@ -94,8 +94,8 @@ def iter_painted(
                        f"or topics.labels")
     names = tour_class_names(tinfo, cfg)
     table = load_class_table(cfg.segmentation.classes_file)
-    on = cfg.paint.model_copy(update={"occlusion_filter": True})
-    off = cfg.paint.model_copy(update={"occlusion_filter": False})
+    on = cfg.paint.with_occlusion_filter(True)
+    off = cfg.paint.with_occlusion_filter(False)
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range)
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
                           cfg.grid.no_return_range)

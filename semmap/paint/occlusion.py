@@ -17,7 +17,7 @@ same mask lie nearer the camera and cover it:
    ``q``'s angular footprint of ``p``'s and which is nearer by at least the depth margin
    (``depth_margin + depth_margin_rel · distance``, which absorbs range noise and the depth
    of the object itself). The footprint is the surface patch a LiDAR beam samples (one beam
-   spacing at ``q``'s range, seen from the camera) widened by ``ray_width``, so the gaps
+   spacing at ``q``'s range, seen from the camera) widened by ``ray_width_deg``, so the gaps
    between the scan points of a continuous surface do not let background points through.
 2. **Bridged gaps.** Objects seen only in parts (a person's two legs, a table's legs) leave
    wider gaps at LiDAR height. ``p`` is also hidden when the nearest such nearer ``L`` points
@@ -35,7 +35,7 @@ same mask lie nearer the camera and cover it:
    of it by at least ``line_depth_margin`` (less than the depth margin: a bed pushed against
    a wall), on the same connected region of the mask.
 5. **Deeper than the object.** An object of a class with a typical size (``sizes:`` in the
-   class table) spans at most ``paint.occlusion_object_extent`` times that size. ``p`` is hidden when a
+   class table) spans at most ``paint.occlusion.object_extent`` times that size. ``p`` is hidden when a
    nearer point ``q`` of the same connected region of the mask lies farther from ``p`` than
    that span, and no farther than it to the side of ``p``'s ray: ``p`` cannot be the object
    ``q`` is on, and that object stands in front of ``p``. This is the wall or cabinet seen
@@ -60,44 +60,21 @@ labelled points) comparison per scan.
 
 from __future__ import annotations
 
-import math
 import weakref
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import PaintConfig
+from ..config import OcclusionConfig
 from ..records import REGION_BASE
 
-__all__ = ["OcclusionParams", "hidden_points", "mask_regions"]
-
-
-@dataclass(frozen=True)
-class OcclusionParams:
-    """The filter's parameters (``paint.occlusion_*`` in the config)."""
-
-    depth_margin: float = 0.25  # m
-    depth_margin_rel: float = 0.03  # share of the point's distance from the camera
-    ray_width: float = math.radians(0.5)  # rad, added to each point's footprint
-    max_gap: float = 2.2  # m, widest gap between two occluding points that is bridged
-    edge_px: float = 8.0  # px a mask may spill past its object's outermost point
-    overhang: float = 0.3  # m an object may reach past its outermost point at LiDAR height
-    line_step: float = 0.06  # m, largest step between neighbouring points of one surface
-    line_depth_margin: float = 0.15  # m, depth margin in front of a background line
-
-    @classmethod
-    def from_config(cls, cfg: PaintConfig) -> OcclusionParams:
-        return cls(cfg.occlusion_depth_margin, cfg.occlusion_depth_margin_rel,
-                   math.radians(cfg.occlusion_ray_width_deg), cfg.occlusion_max_gap,
-                   cfg.occlusion_edge_px, cfg.occlusion_overhang, cfg.occlusion_line_step,
-                   cfg.occlusion_line_depth_margin)
+__all__ = ["OcclusionConfig", "hidden_points", "mask_regions"]
 
 
 def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDArray[np.intp],
                   uv: NDArray[np.float64], targets: NDArray[np.bool_], footprint: NDArray[np.float64],
-                  label_image: NDArray[np.integer], p: OcclusionParams,
+                  label_image: NDArray[np.integer], p: OcclusionConfig,
                   extent: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
     """Which points are hidden from the camera by nearer points of the same mask.
 
@@ -109,7 +86,8 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     their pixels (column, row), clamped to the image (whole pixels if integers); ``targets``
     (K,): the points to judge (inside the image, on a mask); ``footprint`` (K,): each point's
     lateral extent, m (the LiDAR beam spacing at its range); ``label_image``: the
-    segmentation; ``extent``: per label value, the most an object of that label spans, m (inf:
+    segmentation; ``p``: the filter's settings (``paint.occlusion``; ``filter`` is the caller's
+    to check); ``extent``: per label value, the most an object of that label spans, m (inf:
     unbounded, such as structure; None: rule 5 off). Returns a (K,) mask, true only for targets.
     """
     k = xy.shape[0]

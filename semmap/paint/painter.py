@@ -39,7 +39,7 @@ from ..geometry import (
 )
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
-from .occlusion import OcclusionParams, hidden_points, mask_regions
+from .occlusion import hidden_points, mask_regions
 
 __all__ = ["Painter", "PaintResult", "PaintStats", "CameraView"]
 
@@ -165,11 +165,11 @@ class Painter:
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
         self._layout_cache: _Layout | None = None
-        self._occlusion = OcclusionParams.from_config(paint_cfg) if paint_cfg.occlusion_filter else None
+        self._occlusion = paint_cfg.occlusion if paint_cfg.occlusion.filter else None
         # per label value, the most an object of that class spans (inf: structure, or no typical size)
         self._extent: NDArray[np.float64] | None = None
-        if paint_cfg.occlusion_object_extent > 0:
-            self._extent = np.array([np.inf] + [paint_cfg.occlusion_object_extent * class_table.sizes[n]
+        if paint_cfg.occlusion.object_extent > 0:
+            self._extent = np.array([np.inf] + [paint_cfg.occlusion.object_extent * class_table.sizes[n]
                                                 if n in class_table.sizes else np.inf for n in self.class_names])
         if calibration is not None:
             self._eye = se3_inverse(self.T_cam_base)[:2, 3].copy()  # the camera centre in the base frame

@@ -216,8 +216,10 @@ def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = 
     if not tour_path.exists():
         raise BagError(f"{tour_path}: no such file or directory")
     tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
-    if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
-        seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
+    seg = cfg.segmentation
+    if (tinfo.manifest.get("label_classes") and "class_list" in type(seg).model_fields
+            and "class_list" not in seg.model_fields_set):
+        seg_cfg = seg.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
         cfg = cfg.model_copy(update={"segmentation": seg_cfg})
     return tinfo, cfg
 

@@ -4,8 +4,11 @@ A segmenter turns one camera image into a :class:`~semmap.records.Segmentation`:
 a ``uint16`` label image (value k > 0 is ``names[k-1]``, 0 is no object) plus an
 optional per-pixel confidence. Backends register a factory under a name::
 
+    class MyOptions(ModelSegmentationConfig):  # semmap.config; one model per backend
+        backend: Literal["my-backend"] = "my-backend"
+
     @register("my-backend")
-    def _make(cfg: SegmentationConfig) -> Segmenter: ...
+    def _make(cfg: MyOptions) -> Segmenter: ...
 
 ``consumes`` tells the pipeline what to feed: ``"rgb"`` for models that look at the
 camera image, ``"labels"`` for label images already recorded in the bag.
@@ -31,9 +34,9 @@ image stamp, so a rebuild does not segment again.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, runtime_checkable
 
-from ..config import SegmentationConfig
+from ..config import ModelSegmentationConfig, SegmentationConfig
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 
@@ -61,7 +64,7 @@ class Segmenter(Protocol):
         ...
 
 
-SegmenterFactory = Callable[[SegmentationConfig], Segmenter]
+SegmenterFactory = Callable[[Any], Segmenter]  # takes its backend's SegmentationConfig subclass
 
 #: backend name → factory
 SEGMENTERS: dict[str, SegmenterFactory] = {}
@@ -110,7 +113,8 @@ def create_segmenter(cfg: SegmentationConfig, cache: bool = True) -> Segmenter:
     """
     _check(cfg)
     seg = SEGMENTERS[cfg.backend](cfg)
-    if cache and cfg.cache_dir is not None and CONSUMES[cfg.backend] == "rgb":
+    if (cache and isinstance(cfg, ModelSegmentationConfig) and cfg.cache_dir is not None
+            and CONSUMES[cfg.backend] == "rgb"):
         from .cache import CachedSegmenter
 
         return CachedSegmenter(seg, cfg)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import SegmentationConfig
+from ..config import ModelSegmentationConfig
 from ..records import Image, Segmentation
 from .common import file_digest
 
@@ -35,9 +35,12 @@ __all__ = ["CachedSegmenter", "model_identity", "model_key"]
 
 log = logging.getLogger(__name__)
 
-#: options that change a backend's result (other fields, such as threads or cache_dir, do not)
-_RESULT_OPTIONS = ("conf", "iou", "mask_threshold", "max_det", "imgsz", "prompts", "memory_budget_mb",
-                   "class_list")
+#: options that change a backend's result (other fields, such as threads or cache_dir, do not), each with
+#: the value a backend without that option is keyed by. These are the defaults of the one flat
+#: segmentation config every backend shared before each had its own model: keeping them keeps the
+#: keys, and so the cached results, of earlier versions valid. Not settings: never read as defaults.
+_RESULT_OPTIONS: dict[str, Any] = {"conf": 0.25, "iou": 0.7, "mask_threshold": 0.5, "max_det": 300, "imgsz": None,
+                                   "prompts": None, "memory_budget_mb": 4096.0, "class_list": "coco"}
 
 
 def _weights_digest(path: Path, cache_root: Path) -> str:
@@ -61,11 +64,11 @@ def _weights_digest(path: Path, cache_root: Path) -> str:
     return digest
 
 
-def model_identity(cfg: SegmentationConfig, cache_root: Path | None = None) -> dict[str, Any]:
+def model_identity(cfg: ModelSegmentationConfig, cache_root: Path | None = None) -> dict[str, Any]:
     """What a cached result depends on: backend, weights digest, result-changing options."""
     # entry format 2 keeps the instance image: results cached before it are segmented again
     ident: dict[str, Any] = {"backend": cfg.backend, "entry_format": 2}
-    weights = cfg.model
+    weights = cfg.weights
     if weights is None and cfg.backend == "mediapipe-selfie":
         from .selfie import default_selfie_model
 
@@ -73,11 +76,11 @@ def model_identity(cfg: SegmentationConfig, cache_root: Path | None = None) -> d
     if weights is not None and Path(weights).expanduser().exists():
         root = cache_root if cache_root is not None else Path(tempfile.gettempdir())
         ident["weights_sha256"] = _weights_digest(Path(weights), root)
-    if cfg.folder is not None:
-        ident["folder"] = str(Path(cfg.folder).expanduser().resolve())
     opts = cfg.model_dump(mode="json")
-    for k in _RESULT_OPTIONS:
-        ident[k] = opts[k]
+    if opts.get("folder") is not None:  # a backend reading results from a folder (a plugin's)
+        ident["folder"] = str(Path(opts["folder"]).expanduser().resolve())
+    for k, absent in _RESULT_OPTIONS.items():
+        ident[k] = opts.get(k, absent)
     return ident
 
 
@@ -106,7 +109,7 @@ class CachedSegmenter:
 
     consumes = "rgb"
 
-    def __init__(self, inner: Any, cfg: SegmentationConfig) -> None:
+    def __init__(self, inner: Any, cfg: ModelSegmentationConfig) -> None:
         self.inner = inner
         self.name = inner.name
         root = Path(cfg.cache_dir).expanduser()  # type: ignore[arg-type]

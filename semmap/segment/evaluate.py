@@ -168,8 +168,8 @@ class EvalResult:
 
 
 def _label_name(cfg: SegmentationConfig) -> str:
-    if cfg.model is not None:
-        return f"{cfg.backend}:{Path(cfg.model).stem}"
+    if cfg.weights is not None:
+        return f"{cfg.backend}:{Path(cfg.weights).stem}"
     return cfg.backend
 
 
@@ -179,7 +179,7 @@ ProgressFn = Callable[[int, int], None]
 def _score_backend(ds: SegDataset, cfg: SegmentationConfig, label: str, progress: ProgressFn | None,
                    done0: int, total: int) -> BackendScore:
     nc = len(ds.names)
-    seg = create_segmenter(cfg, cache=cfg.cache_dir is not None)
+    seg = create_segmenter(cfg)  # cached when the config sets cache_dir
     try:
         pred_names = tuple(seg.names)
         # label value k (names[k-1]) → dataset class id, -1 if the dataset has no such class

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ..classes import load_class_table
-from ..config import SegmentationConfig
+from ..config import FolderSegmentation
 from ..errors import ConfigError, SemmapError
 from ..records import Image, Segmentation
 from .base import register
@@ -42,7 +42,7 @@ class FolderSegmenter:
     name = "folder"
     consumes = "rgb"
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: FolderSegmentation) -> None:
         if cfg.folder is None:
             raise ConfigError("segmentation.folder: the folder backend needs the folder of label PNGs")
         self.root = Path(cfg.folder).expanduser()
@@ -82,5 +82,5 @@ class FolderSegmenter:
 
 
 @register("folder")
-def _make(cfg: SegmentationConfig) -> FolderSegmenter:
+def _make(cfg: FolderSegmentation) -> FolderSegmenter:
     return FolderSegmenter(cfg)

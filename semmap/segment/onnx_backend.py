@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..classes import load_class_table
-from ..config import SegmentationConfig
+from ..config import OnnxSegmentation
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 from .base import register
@@ -60,7 +60,7 @@ class OnnxSegmenter:
     name = "onnx"
     consumes = "rgb"
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: OnnxSegmentation) -> None:
         self.cfg = cfg
         self.path = require_model(cfg.model, "onnx", "a .onnx model file")
         self._session: Any = None
@@ -222,6 +222,6 @@ def _meta_imgsz(meta: dict[str, str]) -> int | None:
 
 
 @register("onnx")
-def _make(cfg: SegmentationConfig) -> OnnxSegmenter:
+def _make(cfg: OnnxSegmentation) -> OnnxSegmenter:
     return OnnxSegmenter(cfg)
 

@@ -246,7 +246,7 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
             all_px = sum(pixels.values()) or 1
             share = {names[v - 1]: round(c / all_px, 4) for v, c in sorted(pixels.items(), key=lambda kv: -kv[1])}
             meta: dict[str, Any] = {"names": list(names), "backend": config.backend,
-                                    "model": str(config.model) if config.model else None}
+                                    "model": str(config.weights) if config.weights else None}
             (tmp / "labels" / "classes.json").write_text(json.dumps(meta, indent=1))
             (tmp / "classes.json").write_text(json.dumps(meta, indent=1))
             summary = {"source": source_desc, "frames": n, "bad_frames": stats["bad_frames"],

@@ -65,7 +65,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..classes import load_class_table
-from ..config import SegmentationConfig
+from ..config import Sam3Segmentation
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 from .base import register
@@ -118,7 +118,7 @@ class Sam3Segmenter:
     name = "sam3"
     consumes = "rgb"
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: Sam3Segmentation) -> None:
         self.cfg = cfg
         self.path = require_model(cfg.model, "sam3", "a local SAM 3 model folder (Sam3Model.save_pretrained "
                                                      "plus its tokenizer)")
@@ -355,7 +355,7 @@ class Sam3Segmenter:
 
 
 @register("sam3")
-def _make(cfg: SegmentationConfig) -> Sam3Segmenter:
+def _make(cfg: Sam3Segmentation) -> Sam3Segmenter:
     return Sam3Segmenter(cfg)
 
 

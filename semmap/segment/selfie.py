@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import SegmentationConfig
+from ..config import SelfieSegmentation
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 from .base import register
@@ -44,7 +44,7 @@ class SelfieSegmenter:
     consumes = "rgb"
     names: tuple[str, ...] = ("person",)
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: SelfieSegmentation) -> None:
         self.cfg = cfg
         self.path = Path(cfg.model).expanduser() if cfg.model is not None else default_selfie_model()
         if not self.path.is_file():
@@ -101,5 +101,5 @@ class SelfieSegmenter:
 
 
 @register("mediapipe-selfie")
-def _make(cfg: SegmentationConfig) -> SelfieSegmenter:
+def _make(cfg: SelfieSegmentation) -> SelfieSegmenter:
     return SelfieSegmenter(cfg)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..classes import load_class_table
-from ..config import SegmentationConfig
+from ..config import TopicSegmentation
 from ..errors import BagError
 from ..io.messages import LABEL_ENCODINGS
 from ..records import Image, Segmentation
@@ -24,7 +24,7 @@ class LabelTopicSegmenter:
     name = "topic"
     consumes = "labels"
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: TopicSegmentation) -> None:
         table = load_class_table(cfg.classes_file)
         self.names: tuple[str, ...] = table.names(cfg.class_list)
 
@@ -40,5 +40,5 @@ class LabelTopicSegmenter:
 
 
 @register("topic", consumes="labels")
-def _make(cfg: SegmentationConfig) -> LabelTopicSegmenter:
+def _make(cfg: TopicSegmentation) -> LabelTopicSegmenter:
     return LabelTopicSegmenter(cfg)

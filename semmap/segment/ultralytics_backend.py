@@ -18,7 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..config import SegmentationConfig
+from ..config import UltralyticsSegmentation
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 from .base import register
@@ -35,7 +35,7 @@ class UltralyticsSegmenter:
     name = "ultralytics"
     consumes = "rgb"
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: UltralyticsSegmentation) -> None:
         self.cfg = cfg
         self.path = require_model(cfg.model, "ultralytics", "a .pt model file")
         self._model: Any = None
@@ -85,5 +85,5 @@ class UltralyticsSegmenter:
 
 
 @register("ultralytics")
-def _make(cfg: SegmentationConfig) -> UltralyticsSegmenter:
+def _make(cfg: UltralyticsSegmentation) -> UltralyticsSegmenter:
     return UltralyticsSegmenter(cfg)

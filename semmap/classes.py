@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Mapping
 
 from .errors import ConfigError
 from .records import Mobility
@@ -57,10 +57,6 @@ class ClassTable:
             raise ConfigError(
                 f"{self.source}: class {name!r} has no mobility; add it under 'mobility:'"
             ) from None
-
-    def mobility_lut(self, names: Sequence[str]) -> list[Mobility]:
-        """Mobility per label value: index 0 is 'no object' (static), k is names[k-1]."""
-        return [Mobility.STATIC] + [self.mobility_of(n) for n in names]
 
 
 def _parse(data: object, source: str) -> ClassTable:

@@ -9,7 +9,7 @@ throughput while a backend runs in the build's frame worker.
      random unless you pass a trained export: speed does not depend on them, except that random
      weights detect nothing, so mask assembly costs nothing). Export one with Ultralytics:
      ``YOLO('yolo11n-seg.yaml').export(format='onnx', opset=17, dynamic=True)``.
-   - ``sam3``: a random-weight SAM 3 of the ``small`` preset (``semmap.segment.sam3``: SAM 3 with
+   - ``sam3``: a random-weight SAM 3 of the ``small`` preset (``tests/sam3_helpers.py``: SAM 3 with
      widths and queries / 4 and the token grid / 2, so its FLOP split between the image embedding and
      a prompt's decoder run is SAM 3's at twice the side), 1 and 80 prompts.
    **SAM 3 prompt scaling**: time(10 prompts) / time(1 prompt), the 1- and 10-prompt segmenters
@@ -47,6 +47,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
+sys.path.insert(0, str(REPO / "tests"))  # sam3_helpers: the random-weight SAM 3 models
 from benchlib import machine  # noqa: E402
 
 BUILD_CHILD = r"""
@@ -148,12 +149,13 @@ def sam3_kept(sam3_dir: Path, rgb: np.ndarray, conf: float) -> tuple[float, int]
 
 
 def sam3_scaling(sam3_dir: Path, rgb: np.ndarray, args, results: dict) -> None:
+    from sam3_helpers import PRESETS, flop_split, random_config
+
     from semmap.classes import load_class_table
     from semmap.config import SegmentationConfig
-    from semmap.segment.sam3 import _PRESETS, flop_split, random_config
 
     coco = load_class_table(None).names("coco")
-    native = _PRESETS["small"]["side"]
+    native = PRESETS["small"]["side"]
     kept, queries = sam3_kept(sam3_dir, rgb, SegmentationConfig().conf)
     settings = [("default conf, every prompt keeps queries", {}),
                 ("conf 1: no prompt keeps a query", {"conf": 1.0}),
@@ -243,7 +245,7 @@ def main() -> int:
         results["notes"].append("onnx: no --yolo-onnx / $SEMMAP_YOLO_ONNX given")
     sam3_dir = None
     try:
-        from semmap.segment.sam3 import save_random_model
+        from sam3_helpers import save_random_model
 
         sam3_dir = save_random_model(Path(tempfile.mkdtemp(prefix="semmap-sam3-")) / "small", "small")
         from semmap.classes import load_class_table

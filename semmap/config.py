@@ -245,7 +245,7 @@ class PaintConfig(_Model):
                                "Hokuyo URG that report 'nothing seen' as small error codes")
     occlusion_filter: bool = Field(True, description="points on a mask that nearer points of the same mask hide "
                                                      "from the camera become unknown instead of taking the "
-                                                     "mask's label (README, 'The occlusion filter')")
+                                                     "mask's label (docs/occlusion.md)")
     occlusion_depth_margin: float = Field(0.25, ge=0, description="occlusion filter: a point is hidden only by "
                                                                   "points at least this much nearer the camera, m")
     occlusion_depth_margin_rel: float = Field(0.03, ge=0, le=1, description="occlusion filter: plus this share of "

@@ -259,7 +259,7 @@ class GridSpec:
 
 @dataclass(frozen=True)
 class Segmentation:
-    """A segmentation result for one camera image (see README, "Label images").
+    """A segmentation result for one camera image (see docs/conventions.md, "Label images").
 
     ``label`` is ``uint16`` (H, W): value k > 0 is ``names[k-1]``, 0 is no object.
     ``confidence`` is ``float32`` (H, W) in [0, 1] where the backend has one.

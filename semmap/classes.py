@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated, Any, Mapping, Sequence
+from typing import Annotated, Any, Mapping
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
@@ -60,10 +60,6 @@ class ClassTable:
             raise ConfigError(
                 f"{self.source}: class {name!r} has no mobility; add it under 'mobility:'"
             ) from None
-
-    def mobility_lut(self, names: Sequence[str]) -> list[Mobility]:
-        """Mobility per label value: index 0 is 'no object' (static), k is names[k-1]."""
-        return [Mobility.STATIC] + [self.mobility_of(n) for n in names]
 
 
 def _mobility(v: Any) -> Mobility:

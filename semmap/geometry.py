@@ -1,6 +1,6 @@
 """SE(2)/SE(3) helpers, angle wrapping and conversions.
 
-Conventions (see README): ``T_a_b`` maps coordinates in frame b into frame a,
+Conventions (see docs/conventions.md): ``T_a_b`` maps coordinates in frame b into frame a,
 ``p_a = T_a_b @ p_b``. Floor poses are SE(2) ``(x, y, yaw)`` in metres and
 radians; 4x4 matrices appear only at library boundaries.
 """

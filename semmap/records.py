@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Literal, NamedTuple
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,7 +18,6 @@ from .geometry import is_rotation, se3_inverse
 __all__ = [
     "REGION_BASE",
     "Mobility",
-    "Pose2",
     "CameraIntrinsics",
     "Calibration",
     "Scan",
@@ -54,17 +53,6 @@ class Mobility(IntEnum):
     @property
     def label(self) -> str:
         return self.name.lower()
-
-
-class Pose2(NamedTuple):
-    """A pose on the floor, SE(2): metres and radians."""
-
-    x: float
-    y: float
-    yaw: float
-
-    def as_array(self) -> NDArray[np.float64]:
-        return np.array([self.x, self.y, self.yaw], dtype=np.float64)
 
 
 def _matrix(a: object, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
@@ -271,7 +259,7 @@ class GridSpec:
 
 @dataclass(frozen=True)
 class Segmentation:
-    """A segmentation result for one camera image (see README, "Label images").
+    """A segmentation result for one camera image (see docs/conventions.md, "Label images").
 
     ``label`` is ``uint16`` (H, W): value k > 0 is ``names[k-1]``, 0 is no object.
     ``confidence`` is ``float32`` (H, W) in [0, 1] where the backend has one.

@@ -1,6 +1,6 @@
 """Mutated build configs and calibration files: a clear one-line error or a valid object, never a traceback.
 
-Valid files (the README's build config, the calibration.yaml ``semmap simulate`` writes) are
+Valid files (docs/build.md's build config, the calibration.yaml ``semmap simulate`` writes) are
 mutated at the YAML level (keys dropped, values replaced by NaN, inf, huge, negative or zero
 numbers, strings, wrong-length lists, unknown keys, extra nesting) and at the byte level (bytes
 flipped, inserted, deleted, the file truncated). Every case must end in a valid object or a
@@ -32,7 +32,7 @@ from semmap.io.calibration import read_calibration
 from semmap.io.tour import load_build_config
 from semmap.records import Calibration
 
-# the README's example (section "Configuration"), with workers off
+# docs/build.md's example (section "Configuration"), with workers off
 README_CONFIG = """\
 topics:
   scan: /front/scan              # null: detect
@@ -316,7 +316,7 @@ def test_nan_in_a_ros_camera_info_file_is_refused(tmp_path):
 
 
 def tour_config(tmp_path: Path, **changes: Any) -> Path:
-    """The README config pointed at the simulated tour's topics, with ``changes`` ({"grid.resolution": x})."""
+    """The docs/build.md config pointed at the simulated tour's topics, with ``changes`` ({"grid.resolution": x})."""
     cfg = yaml.safe_load(README_CONFIG)
     cfg["topics"] = {"scan": "/scan", "labels": "/camera/labels", "odometry": "/odom"}
     del cfg["frames"]["base_T_lidar"]

@@ -19,7 +19,7 @@ PROMPTS = ("person", "chair", "dining table", "potted plant")
 
 @pytest.fixture(scope="module")
 def tiny_sam3(tmp_path_factory):
-    from semmap.segment.sam3 import save_random_model
+    from sam3_helpers import save_random_model
 
     return save_random_model(tmp_path_factory.mktemp("sam3") / "tiny", "tiny", seed=1)
 

@@ -8,10 +8,10 @@
    degenerate case: what is observable must still be right).
 3. The automatic board method on the real ACFR pairs: line-to-plane residuals, the pattern's
    reprojection error, and where the projected scan's board segment ends against the
-   board's edges in the image; writes the check picture for the README.
+   board's edges in the image; writes the check picture for docs/calibration.md.
 4. Intrinsics on rendered board images (pinhole chessboard, fisheye ChArUco 4x4).
 
-Prints Markdown tables for the README and, with --json, the raw figures.
+Prints Markdown tables for docs/calibration.md and, with --json, the raw figures.
 
     python tools/bench_calib.py                      # everything (about a minute)
     python tools/bench_calib.py --trials 50 --skip-intrinsics
@@ -159,7 +159,7 @@ def bench_acfr(data: Path, image_out: Path | None) -> dict | None:
     from semmap.geometry import se3_from_xyz_rpy
     from semmap.records import Calibration
 
-    # what a 3° yaw error looks like, for the reader of the README
+    # what a 3° yaw error looks like, for the reader of docs/calibration.md
     bad = Calibration(k, calib.T_cam_lidar @ se3_from_xyz_rpy([0, 0, 0], [0, 0, math.radians(3.0)]))
     for o, v in zip(obs, r.views):
         img = cv2.imread(str(d / "images" / f"{o.name}.png"))

@@ -2,8 +2,8 @@
 """Benchmark `semmap simulate`: wall time, real-time factor, bag size and peak memory per scenario.
 
 Each scenario runs in its own process (so peak RSS is its own), writing into a
-temporary folder that is deleted afterwards. Prints a Markdown table for the
-README and, with --json, the raw figures.
+temporary folder that is deleted afterwards. Prints a Markdown table for
+docs/benchmarks.md and, with --json, the raw figures.
 
     python tools/bench_simulate.py                       # ward (the 60 s target) and demo
     python tools/bench_simulate.py --scenarios ward office occlusion --format mcap

@@ -1,6 +1,6 @@
 """Small helpers shared by the calibration modules: camera models, pose parameters, pose errors.
 
-Conventions (see README): ``T_a_b`` maps points in frame b into frame a. Here ``T_cam_lidar``
+Conventions (see docs/conventions.md): ``T_a_b`` maps points in frame b into frame a. Here ``T_cam_lidar``
 maps LiDAR-frame points into the camera optical frame, ``T_lidar_cam`` is its inverse.
 """
 

@@ -39,7 +39,7 @@ MAX_SWEEP_S = 1.0
 #: a planar position or translation farther from its frame's origin than Earth is wide is a damaged field
 MAX_COORD_M = 1.3e7
 
-#: encodings a label image may use (see README, "Label images")
+#: encodings a label image may use (see docs/conventions.md, "Label images")
 LABEL_ENCODINGS = {"mono8", "8UC1", "mono16", "16UC1"}
 
 _CHANNELS = {

@@ -1,4 +1,4 @@
-"""Writing the map folder (see README, "Map folder")::
+"""Writing the map folder (see README, "The map folder")::
 
     OUT/
       map.yaml + map.pgm          the cleaned map for map_server / nav2 (trinary)

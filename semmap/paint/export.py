@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, int], None]
 
-#: the columns of the exported file, in order (see README, "semmap paint")
+#: the columns of the exported file, in order (see docs/occlusion.md, "`semmap paint`")
 EXPORT_COLUMNS = ("stamp_ns", "beam", "x", "y", "class_raw", "mobility_raw", "class", "mobility", "object")
 
 

@@ -1,7 +1,7 @@
 """The ``topic`` backend: label images recorded in the bag (``mono8``/``mono16``).
 
 Their class list comes from configuration (``segmentation.class_list``), as the
-README's "Label images" convention says.
+docs/conventions.md's "Label images" convention says.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ its class names come from the model. Set ``YOLO_OFFLINE=1`` to keep Ultralytics 
 reaching the network.
 
 Install: ``pip install -c constraints.txt ultralytics``. Ultralytics needs a torchvision
-that imports beside the installed torch (see the README's install notes).
+that imports beside the installed torch (see docs/build.md, "Installing").
 """
 
 from __future__ import annotations

@@ -36,7 +36,8 @@ from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
 from .io.bag import ReadStats, iter_messages, message_count, open_bag, resolve_bag_path
 from .io.messages import odometry_from_msg, scan_from_msg
-from .io.tour import IMAGE_T, Tour, load_build_config, open_tour
+from .io.topics import IMAGE_T
+from .io.tour import Tour, load_build_config, open_tour
 from .paint.motion import OdomTrack
 from .paint.painter import Painter
 from .records import PaintedScan, Scan, Segmentation

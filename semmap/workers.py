@@ -450,9 +450,6 @@ class _Workers:
 # ---------------------------------------------------------------------------------------
 # Frames: decoding and segmentation
 
-_COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
-
-
 class FrameSource(Protocol):
     """Segmentations of the camera topic, one per frame, in bag order."""
 
@@ -493,12 +490,12 @@ class _Frames:
     @staticmethod
     def _frames(messages: Iterator[tuple[str, int, Any]], topic: str, msgtype: str, segmenter: Any,
                 counts: dict[str, int]) -> Iterator[Segmentation]:
-        from .io.messages import compressed_image_from_msg, image_from_msg
+        from .io.messages import decode_image
 
         for _, _, msg in messages:
             t0 = time.perf_counter()
             try:
-                img = compressed_image_from_msg(msg, topic) if msgtype == _COMPRESSED_T else image_from_msg(msg, topic)
+                img = decode_image(msg, msgtype, topic)
                 seg = segmenter.segment(img)
             except SemmapError as exc:  # a bad frame is skipped and counted
                 counts["bad_frames"] += 1

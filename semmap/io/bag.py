@@ -28,7 +28,7 @@ import mmap
 import os
 import re
 import struct
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +50,13 @@ __all__ = [
     "BagInfo",
     "bag_info",
     "open_bag",
+    "read_bag",
+    "OpenBag",
+    "ReadStats",
+    "iter_messages",
+    "iter_records",
+    "message_count",
+    "topic_types",
     "resolve_bag_path",
     "bag_suffix",
 ]
@@ -1757,6 +1764,113 @@ def message_count(path: str | Path, topic: str, reader: Any = None) -> int:
         return sum(max(c.msgcount, 0) for c in reader.connections if c.topic == topic)
     with open_bag(path) as opened:
         return message_count(path, topic, opened)
+
+
+class OpenBag:
+    """A bag opened once (:func:`read_bag`): its topics and their types, message counts, time span,
+    and streams of its messages, each read from the same opened reader (for a ROS1 bag, one table
+    of its chunks, or one index rosbags parsed)."""
+
+    def __init__(self, path: Path, reader: Any) -> None:
+        self.path = path
+        self._reader = reader
+        #: topic -> message type (``sensor_msgs/msg/LaserScan`` style)
+        self.types: dict[str, str] = {}
+        for conn in reader.connections:
+            self.types.setdefault(conn.topic, conn.msgtype)
+
+    @property
+    def start_ns(self) -> int:
+        """The bag time of its first message (as the storage's index gives it)."""
+        return int(self._reader.start_time)
+
+    @property
+    def end_ns(self) -> int:
+        """The bag time just after its last message (as the storage's index gives it)."""
+        return int(self._reader.end_time)
+
+    def count(self, topic: str) -> int:
+        """Messages on ``topic`` as the bag's index counts them (0 if the storage does not say)."""
+        return message_count(self.path, topic, self._reader)
+
+    def messages(self, topics: Sequence[str], stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, bag time, message)`` of ``topics`` in bag-time order (:func:`iter_messages`); the
+        messages are rosbags' objects, for :mod:`semmap.io` (elsewhere, :meth:`records`)."""
+        return iter_messages(self.path, topics, stats, self._reader)
+
+    def first(self, topic: str) -> Any:
+        """The first message on ``topic`` (rosbags' object); :class:`BagError` when there is none."""
+        for _, _, msg in self.messages([topic]):
+            return msg
+        raise BagError(f"{self.path}: topic {topic} has no messages")
+
+    def records(self, topics: Sequence[str], stats: ReadStats | None = None, start_ns: int | None = None,
+                stop_ns: int | None = None, skip: Callable[[str, SemmapError], None] | None = None,
+                ) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, bag time, record)`` of ``topics`` in bag-time order, each message as the semmap record
+        for its type (:func:`~semmap.io.messages.record_from_msg`), from bag time ``start_ns`` (messages
+        before it are not decoded) to ``stop_ns`` (both included). ``skip``: a message that cannot be
+        decoded is handed to it (topic, error) and left out; without it, the error is raised."""
+        from .messages import record_from_msg
+
+        for topic, t_ns, msg in self.messages(topics, stats):
+            if start_ns is not None and t_ns < start_ns:
+                continue
+            if stop_ns is not None and t_ns > stop_ns:
+                return
+            try:
+                record = record_from_msg(self.types[topic], msg, topic)
+            except SemmapError as exc:
+                if skip is None:
+                    raise
+                skip(topic, exc)
+                continue
+            yield topic, t_ns, record
+
+    def nearest(self, topic: str, t_ns: int) -> tuple[int, Any] | None:
+        """``(bag time, record)`` of the message on ``topic`` nearest bag time ``t_ns`` (only that one is
+        decoded); None when the topic has no messages."""
+        from .messages import record_from_msg
+
+        best: tuple[int, Any] | None = None
+        for _, t_msg, msg in self.messages([topic]):
+            if best is None or abs(t_msg - t_ns) < abs(best[0] - t_ns):
+                best = (t_msg, msg)
+            elif t_msg > t_ns:
+                break
+        return None if best is None else (best[0], record_from_msg(self.types[topic], best[1], topic))
+
+    def nearest_stamp(self, topic: str, stamp_ns: int, within_ns: int, until_ns: int) -> Any:
+        """The record of the message on ``topic`` whose header stamp is nearest ``stamp_ns`` and within
+        ``within_ns`` of it (only that one is decoded), read up to bag time ``until_ns``; None if none is."""
+        from .messages import record_from_msg
+        from .messages import stamp_ns as header_stamp
+
+        best, best_dt = None, within_ns + 1
+        for _, t_msg, msg in self.messages([topic]):
+            dt = abs(header_stamp(msg.header) - stamp_ns)
+            if dt < best_dt:
+                best, best_dt = msg, dt
+            if t_msg > until_ns:
+                break
+        return None if best is None else record_from_msg(self.types[topic], best, topic)
+
+
+@contextmanager
+def read_bag(path: str | Path) -> Iterator[OpenBag]:
+    """The bag at ``path`` (or in the tour folder ``path``) opened once, as an :class:`OpenBag`;
+    errors become :class:`BagError` naming the file."""
+    p = resolve_bag_path(path)
+    with open_bag(p) as reader:
+        yield OpenBag(p, reader)
+
+
+def iter_records(path: str | Path, topics: Sequence[str],
+                 stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, bag time, record)`` of ``topics`` of the bag at ``path`` (:meth:`OpenBag.records`), opened
+    for as long as the stream lasts."""
+    with read_bag(path) as bag:
+        yield from bag.records(topics, stats)
 
 
 @dataclass

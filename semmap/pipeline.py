@@ -34,7 +34,7 @@ from .config import BuildConfig, merge_overrides
 from .errors import BagError, ConfigError
 from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
-from .io.bag import ReadStats, iter_messages, message_count, open_bag, resolve_bag_path
+from .io.bag import OpenBag, ReadStats, read_bag, resolve_bag_path
 from .io.messages import odometry_from_msg, scan_from_msg
 from .io.topics import IMAGE_T
 from .io.tour import Tour, load_build_config, open_tour
@@ -238,8 +238,9 @@ def _frames_are_light(cfg: BuildConfig, msgtype: str) -> bool:
 
 def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
                     calibration: str | Path | None = None,
-                    overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
+                    overrides: dict[str, Any] | None = None, source: OpenBag | None = None) -> tuple[Tour, BuildConfig]:
     """The effective config and the opened tour, as ``semmap build`` sees them (also ``semmap paint``).
+    ``source``: the tour's bag, opened once for the whole build (:func:`~semmap.io.bag.read_bag`).
 
     A simulated tour's manifest names the class list of its label images; it applies unless
     the config sets ``segmentation.class_list``.
@@ -253,7 +254,8 @@ def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = 
     tour_path = Path(tour)
     if not tour_path.exists():
         raise BagError(f"{tour_path}: no such file or directory")
-    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
+    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation),
+                      source=source)
     if tinfo.manifest.get("label_classes") and "class_list" not in cfg.segmentation.model_fields_set:
         seg_cfg = cfg.segmentation.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
         cfg = cfg.model_copy(update={"segmentation": seg_cfg})
@@ -285,8 +287,8 @@ def build(
     with contextlib.suppress(BagError):  # the bag inside a tour folder is an input too (opening it says why not)
         inputs.append(resolve_bag_path(tour))
     with _KeptWarnings() as warned, atomic_dir(out, force, marker=MAP_MARKER, inputs=inputs,
-                                               what="semmap map folder") as tmp:
-        tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
+                                               what="semmap map folder") as tmp, read_bag(tour, lazy=True) as bag:
+        tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
         cfg = _effective_config(tinfo, cfg)
         _log_detected(tinfo, cfg)
         frames: FrameSource | None = None
@@ -318,7 +320,7 @@ def build(
             for part in (frames, mapper):  # workers load their libraries before the clock starts
                 if part is not None:
                     part.wait_ready()
-            stats, loop_s = _stream(tinfo, pipe, mapper, progress)
+            stats, loop_s = _stream(tinfo, bag, pipe, mapper, progress)
         finally:
             for part in (frames, mapper):
                 if part is not None:
@@ -360,15 +362,16 @@ class _KeptWarnings(logging.Handler):
         logging.getLogger("semmap").removeHandler(self)
 
 
-def _stream(tinfo: Tour, pipe: _Pipeline, mapper: Mapper, progress: ProgressFn | None) -> tuple[ReadStats, float]:
+def _stream(tinfo: Tour, bag: OpenBag, pipe: _Pipeline, mapper: Mapper,
+            progress: ProgressFn | None) -> tuple[ReadStats, float]:
     """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
     topics = [t for t in (tinfo.topics.scan, tinfo.topics.odometry) if t]
     stats = ReadStats()
-    with open_bag(tinfo.bag) as reader:  # opened once: counting and streaming share its index
-        n_scan_msgs = message_count(tinfo.bag, tinfo.topics.scan, reader)
+    with contextlib.closing(bag):  # opened once: the tour, counting and streaming share its index
+        n_scan_msgs = bag.count(tinfo.topics.scan)
         t_loop = time.perf_counter()
         cpu_loop = time.process_time()
-        for topic, t_bag, msg in iter_messages(tinfo.bag, topics, stats, reader):
+        for topic, t_bag, msg in bag.messages(topics, stats):
             if topic == tinfo.topics.scan:
                 pipe.on_scan(t_bag, msg)
                 if progress is not None and stats.read.get(topic, 0) % 50 == 0:

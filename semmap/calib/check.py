@@ -166,7 +166,7 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
         topics = pick_topics(src.types, TopicsConfig(scan=scan_topic, image=image_topic), path, "rgb", manifest,
                              kinds=("scan", "frames"), required=("scan", "frames"),
                              options={"scan": "--scan-topic", "image": "--image-topic"})
-        assert topics.scan is not None and topics.frames is not None  # required
+        assert topics.scan and topics.frames is not None  # required
         start, end = src.start_ns, src.end_ns
         if time_s is None:
             time_s = (end - start) * 0.5e-9

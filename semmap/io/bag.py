@@ -19,6 +19,7 @@ is wrong with it.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import io
 import logging
 import mmap
@@ -1145,13 +1146,43 @@ class OpenBag:
     and streams of its messages, each read from the same opened reader (for a ROS1 bag, one table
     of its chunks, or one index rosbags parsed)."""
 
-    def __init__(self, path: Path, reader: Any) -> None:
-        self.path = path
-        self._reader = reader
-        #: topic -> message type (``sensor_msgs/msg/LaserScan`` style)
-        self.types: dict[str, str] = {}
-        for conn in reader.connections:
-            self.types.setdefault(conn.topic, conn.msgtype)
+    def __init__(self, path: str | Path, stack: contextlib.ExitStack) -> None:
+        self._given = path
+        self._stack = stack
+        self._path: Path | None = None
+        self._opened: Any = None
+        self._closed = False
+        self._types: dict[str, str] | None = None
+
+    @property
+    def path(self) -> Path:
+        """The bag file or ROS2 bag folder."""
+        if self._path is None:
+            self._path = resolve_bag_path(self._given)
+        return self._path
+
+    @property
+    def _reader(self) -> Any:
+        if self._opened is None:
+            if self._closed:
+                raise BagError(f"{self.path}: the bag was closed")
+            self._opened = self._stack.enter_context(open_bag(self.path))
+        return self._opened
+
+    def close(self) -> None:
+        """Close the bag now (else when :func:`read_bag`'s block ends)."""
+        self._closed = True
+        self._opened = None
+        self._stack.close()
+
+    @property
+    def types(self) -> dict[str, str]:
+        """Topic -> message type (``sensor_msgs/msg/LaserScan`` style)."""
+        if self._types is None:
+            self._types = {}
+            for conn in self._reader.connections:
+                self._types.setdefault(conn.topic, conn.msgtype)
+        return self._types
 
     @property
     def start_ns(self) -> int:
@@ -1231,12 +1262,15 @@ class OpenBag:
 
 
 @contextmanager
-def read_bag(path: str | Path) -> Iterator[OpenBag]:
-    """The bag at ``path`` (or in the tour folder ``path``) opened once, as an :class:`OpenBag`;
-    errors become :class:`BagError` naming the file."""
-    p = resolve_bag_path(path)
-    with open_bag(p) as reader:
-        yield OpenBag(p, reader)
+def read_bag(path: str | Path, lazy: bool = False) -> Iterator[OpenBag]:
+    """The bag at ``path`` (or in the tour folder ``path``) opened once, as an :class:`OpenBag`, and
+    closed when the block ends; errors become :class:`BagError` naming the file. ``lazy``: the bag is
+    found and opened when first used (its errors come when the work that needs it starts)."""
+    with contextlib.ExitStack() as stack:
+        bag = OpenBag(path, stack)
+        if not lazy:
+            bag.types  # noqa: B018 - opens it
+        yield bag
 
 
 def iter_records(path: str | Path, topics: Sequence[str],

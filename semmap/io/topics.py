@@ -58,7 +58,7 @@ class TopicSettings(Protocol):
 
 @dataclass(frozen=True)
 class Topics:
-    scan: str | None  # None only when the scan topic was not asked for
+    scan: str  # "" only when the scan topic was not asked for
     frames: str | None  # the image stream the segmenter consumes (labels or RGB)
     frames_kind: str  # "labels" | "rgb" | "none"
     odometry: str | None
@@ -137,4 +137,4 @@ def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | 
         camera_info = _pick("camera_info", want("camera_info"), infos, types, where, "camera_info" in required,
                             option("camera_info"), (INFO_T,)) if infos or settings.camera_info else None
     tf_static = settings.tf_static if settings.tf_static in types else None
-    return Topics(scan, frames, frames_kind, odometry, tf_static, camera_info)
+    return Topics(scan or "", frames, frames_kind, odometry, tf_static, camera_info)

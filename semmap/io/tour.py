@@ -137,7 +137,6 @@ def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], conf
     bag = src.path
     types = dict(src.types)
     topics = resolve_topics(config, types, bag, manifest, consumes)
-    assert topics.scan is not None  # required
 
     scan0 = scan_from_msg(src.first(topics.scan), topics.scan)
     lidar_frame = config.frames.lidar or scan0.frame_id

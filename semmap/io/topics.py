@@ -77,7 +77,7 @@ def _pick(kind: str, wanted: str | None, candidates: list[str], types: Mapping[s
         if wanted.lower() == "none":
             return None
         if wanted not in types:
-            raise BagError(f"{where}: no topic {wanted} ({kind}) in the bag "
+            raise BagError(f"{where}: topic {wanted} ({kind}) is not in the bag "
                              f"(topics: {', '.join(sorted(types)) or 'none'})")
         if fits and types[wanted] not in fits:
             raise BagError(f"{where}: topic {wanted} is {types[wanted]}, not {' or '.join(fits)} ({kind})")

@@ -34,7 +34,7 @@ from .config import BuildConfig
 from .errors import BagError, ConfigError
 from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
-from .io.bag import resolve_bag_path
+from .io.bag import OpenBag, read_bag, resolve_bag_path
 from .io.tour import IMAGE_T, Tour
 from .mapfolder.summary import (
     BuildSummary,
@@ -165,15 +165,15 @@ def build(
     with contextlib.suppress(BagError):  # the bag inside a tour folder is an input too (opening it says why not)
         inputs.append(resolve_bag_path(tour))
     with _KeptWarnings() as warned, atomic_dir(out, force, marker=MAP_MARKER, inputs=inputs,
-                                               what="semmap map folder") as tmp:
-        tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
+                                               what="semmap map folder") as tmp, read_bag(tour, lazy=True) as bag:
+        tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
         cfg = _effective_config(tinfo, cfg)
         _log_detected(tinfo, cfg)
         if tinfo.topics.frames is None:
             log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
         class_names = tour_class_names(tinfo, cfg)
         check_grid_memory(cfg.grid, cfg.registration.max_range, len(class_names))
-        run = _run(tinfo, cfg, class_names, progress)
+        run = _run(tinfo, bag, cfg, class_names, progress)
         if run.stream.counts.scans == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
         _warn_about_painting(tinfo, cfg, run)
@@ -209,7 +209,8 @@ class _KeptWarnings(logging.Handler):
         logging.getLogger("semmap").removeHandler(self)
 
 
-def _run(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], progress: ProgressFn | None) -> _Run:
+def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ...],
+         progress: ProgressFn | None) -> _Run:
     """Start the stages, stream the tour through them, and stop them, whatever happens."""
     frames: FrameSource | None = None
     mapper: Mapper | None = None
@@ -223,26 +224,26 @@ def _run(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], progress: 
             if cfg.workers and not _frames_are_light(cfg, msgtype):
                 intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
                 shape = (intr.height, intr.width) if intr is not None else None
-                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation, shape)
+                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, cfg.segmentation, shape)
             else:
-                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, msgtype, cfg.segmentation)
+                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, cfg.segmentation)
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
                           cfg.grid.no_return_range)
         for part in (frames, mapper):  # workers load their libraries before the clock starts
             if part is not None:
                 part.wait_ready()
-        return _stream(tinfo, cfg, painter, frames, mapper, progress)
+        return _stream(tinfo, bag, cfg, painter, frames, mapper, progress)
     finally:
         for part in (frames, mapper):
             if part is not None:
                 part.close()
 
 
-def _stream(tinfo: Tour, cfg: BuildConfig, painter: Painter, frames: FrameSource | None, mapper: Mapper,
-            progress: ProgressFn | None) -> _Run:
+def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, frames: FrameSource | None,
+            mapper: Mapper, progress: ProgressFn | None) -> _Run:
     """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
-    stream = ScanStream(tinfo, cfg.sync, frames, progress)
+    stream = ScanStream(tinfo, cfg.sync, frames, progress, bag=bag)
     trace, timers = _Trace(), _Timers()
     no_image = no_odom = 0
     n_classes = len(painter.class_names)

@@ -423,7 +423,7 @@ class _Workers:
 # ---------------------------------------------------------------------------------------
 # Frames: decoding and segmentation
 
-def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgtype: str, seg_cfg: dict[str, Any],
+def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, seg_cfg: dict[str, Any],
                  shm_name: str | None, shape: tuple[int, int] | None) -> None:
     """The frame worker: segment every frame of ``topic``; labels go into free shared-memory slots
     (the caller hands each back on ``freed``), or through the pipe when none is free."""
@@ -439,7 +439,7 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, msgty
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
             free = list(range(n))
-        frames = FrameReader(Path(bag), topic, msgtype, segmentation_config(seg_cfg), counts)
+        frames = FrameReader(Path(bag), topic, segmentation_config(seg_cfg), counts)
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in frames:
@@ -472,7 +472,7 @@ class FrameWorker:
     pipe's capacity bounds how far it runs ahead.
     """
 
-    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+    def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
                  shape: tuple[int, int] | None = None, n_slots: int = 12) -> None:
         from multiprocessing import shared_memory
 
@@ -488,7 +488,7 @@ class FrameWorker:
                 self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
                 self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
             freed_r, self._freed = self._group.pipe(to_child=True)
-            self._worker = self._group.add("semmap-frames", "frames", _frames_body, freed_r, str(bag), topic, msgtype,
+            self._worker = self._group.add("semmap-frames", "frames", _frames_body, freed_r, str(bag), topic,
                                            seg_cfg.model_dump(mode="json"), self._shm.name if self._shm else None,
                                            shape)
             self._group.start()

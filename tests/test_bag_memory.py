@@ -47,9 +47,9 @@ def _tour(path: Path, fmt: str, unwanted: int) -> Path:
 def _cost(bag: Path) -> tuple[int, int, int, int]:
     """(bytes held by the open bag, peak bytes while it is opened, counted and its scans streamed, scans
     counted, scans read), as a build reads its scans: one reader, counted, then streamed."""
-    import semmap.io.bag as bag_module
+    import semmap.io.fastbag as fastbag
 
-    getattr(bag_module, "_TABLES", {}).clear()  # measure the first open of the bag, not a cached one
+    getattr(fastbag, "_TABLES", {}).clear()  # measure the first open of the bag, not a cached one
     gc.collect()
     tracemalloc.reset_peak()
     base = tracemalloc.get_traced_memory()[0]
@@ -123,17 +123,17 @@ def _theirs(bag: Path, topics: list[str] | None, start=None, stop=None, reverse=
 
 @pytest.mark.parametrize("compression", [None, "bz2", "lz4"])
 def test_overlapping_chunks_read_in_rosbags_order(tmp_path, monkeypatch, compression):
-    import semmap.io.bag as bag_module
-    from semmap.io.bag import _ros1_records, _Ros1Reader
+    import semmap.io.fastbag as fastbag
+    from semmap.io.fastbag import Ros1Reader, ros1_records
 
     bag = _tangled(tmp_path / "tangled.bag", compression)
     with open_bag(bag) as reader:
-        assert isinstance(reader.readers[0], _Ros1Reader)  # no per-message index
+        assert isinstance(reader.readers[0], Ros1Reader)  # no per-message index
         table = reader.readers[0].table
         assert len(table.t_min) > 20 and np.any(table.t_min[1:] < table.t_max[:-1])  # chunks do overlap
         start, end = reader.start_time, reader.end_time
-    monkeypatch.setattr(bag_module, "_SPARSE_MIN_BYTES", 0)  # record by record wherever the chunks allow it
-    monkeypatch.setattr(bag_module, "_RELEASE_BYTES", 4096)
+    monkeypatch.setattr(fastbag, "_SPARSE_MIN_BYTES", 0)  # record by record wherever the chunks allow it
+    monkeypatch.setattr(fastbag, "_RELEASE_BYTES", 4096)
     mid = (start + end) // 2
     for topics, lo, hi, reverse in ((None, None, None, False), (["/a"], None, None, False), (["/a", "/c"], None, None, True),
                                     (["/b", "/c"], mid, mid + 10**9, False), (None, start, mid, True)):
@@ -146,7 +146,7 @@ def test_overlapping_chunks_read_in_rosbags_order(tmp_path, monkeypatch, compres
             mine = mine[::-1] if reverse else mine
             got = [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages(connections=mine, start=lo, stop=hi)]
             assert got == want
-            records = _ros1_records(reader, mine)
+            records = ros1_records(reader, mine)
             assert (records is None) == (compression is not None)
             if records is not None and lo is None:
                 kept = list(records)  # views of the mapped bag, held while pages read past are handed back
@@ -179,17 +179,17 @@ def _tangled_mcap(path: Path) -> Path:
 def test_mcap_chunks_read_in_rosbags_order(tmp_path, monkeypatch):
     """MCAP messages read record by record, each chunk's index read when the stream reaches it: rosbags'
     order where chunks overlap in time."""
-    import semmap.io.bag as bag_module
-    from semmap.io.bag import _mcap_records
+    import semmap.io.fastbag as fastbag
+    from semmap.io.fastbag import mcap_records
 
     bag = _tangled_mcap(tmp_path / "tangled")
-    monkeypatch.setattr(bag_module, "_SPARSE_MIN_BYTES", 0)
+    monkeypatch.setattr(fastbag, "_SPARSE_MIN_BYTES", 0)
     for topics in (["/a"], ["/a", "/c"], ["/c", "/b", "/a"]):
         want = _theirs(bag, topics)[0]
         with open_bag(bag) as reader:
             chunks = reader.readers[0].storage.storages[0].chunks
             assert len(chunks) > 5 and any(b.message_start_time < a.message_end_time for a, b in itertools.pairwise(chunks))
             conns = [c for c in reader.connections if c.topic in topics]
-            records = _mcap_records(reader, conns)
+            records = mcap_records(reader, conns)
             assert records is not None
             assert [(c.topic, t, bytes(raw)) for c, t, raw in records] == want

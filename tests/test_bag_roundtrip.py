@@ -116,15 +116,16 @@ def _via_rosbags(bag, topics):
 def test_streamed_messages_are_rosbags_messages(short_tour, monkeypatch):
     """semmap reads uncompressed ROS1 and MCAP messages record by record (not whole chunks): same messages,
     same order."""
-    import semmap.io.bag as bag_module
-    from semmap.io.bag import _mcap_records, _ros1_records, iter_messages
+    import semmap.io.fastbag as fastbag
+    from semmap.io.bag import iter_messages
+    from semmap.io.fastbag import mcap_records, ros1_records
 
     theirs = _via_rosbags(short_tour.bag, READ_TOPICS)
-    monkeypatch.setattr(bag_module, "_SPARSE_MIN_BYTES", 0)  # record by record even where chunks would do
-    monkeypatch.setattr(bag_module, "_RELEASE_BYTES", 4096)  # hand mapped pages back after every few messages
+    monkeypatch.setattr(fastbag, "_SPARSE_MIN_BYTES", 0)  # record by record even where chunks would do
+    monkeypatch.setattr(fastbag, "_RELEASE_BYTES", 4096)  # hand mapped pages back after every few messages
     with open_bag(short_tour.bag) as reader:
         conns = [c for c in reader.connections if c.topic in READ_TOPICS]
-        records = _ros1_records(reader, conns) or _mcap_records(reader, conns)
+        records = ros1_records(reader, conns) or mcap_records(reader, conns)
         assert (records is not None) == (short_tour.format in ("ros1", "mcap"))  # sqlite3: rosbags reads rows
         if records is not None:
             kept = list(records)  # views of the mapped bag, held while later pages are handed back
@@ -157,14 +158,14 @@ def test_record_by_record_only_where_chunks_hold_other_bytes(short_tour, tmp_pat
     """Scans beside camera images are read on their own; in a LiDAR-only bag whole chunks are cheaper."""
     if short_tour.bag.suffix != ".bag":
         pytest.skip("ROS1 only")
-    from semmap.io.bag import _ros1_records
+    from semmap.io.fastbag import ros1_records
 
     with open_bag(short_tour.bag) as reader:
-        assert _ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is not None
+        assert ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is not None
     lidar_only = tmp_path / "lidar.bag"
     _rewrite(short_tour.bag, lidar_only, ["/scan", "/odom"])
     with open_bag(lidar_only) as reader:
-        assert _ros1_records(reader, list(reader.connections)) is None
+        assert ros1_records(reader, list(reader.connections)) is None
 
 
 def test_compressed_ros1_chunks_are_read_by_rosbags(short_tour, tmp_path):
@@ -173,11 +174,12 @@ def test_compressed_ros1_chunks_are_read_by_rosbags(short_tour, tmp_path):
         pytest.skip("ROS1 only")
     from rosbags.rosbag1 import Writer
 
-    from semmap.io.bag import _ros1_records, iter_messages
+    from semmap.io.bag import iter_messages
+    from semmap.io.fastbag import ros1_records
 
     packed = tmp_path / "lz4.bag"
     _rewrite(short_tour.bag, packed, READ_TOPICS, Writer.CompressionFormat.LZ4)
     with open_bag(packed) as reader:
-        assert _ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is None
+        assert ros1_records(reader, [c for c in reader.connections if c.topic == "/scan"]) is None
     assert [(topic, t) for topic, t, _ in iter_messages(packed, READ_TOPICS)] == \
         [(topic, t) for topic, t, _ in _via_rosbags(short_tour.bag, READ_TOPICS)]

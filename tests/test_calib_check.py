@@ -91,7 +91,7 @@ def test_check_bad_topic_or_time_is_one_line(short_tour, tmp_path, capsys):
     code = main(["calibrate", "check", "--bag", str(short_tour.out), "--scan-topic", "/nope", "--out",
                  str(tmp_path / "c.png")])
     err = capsys.readouterr().err.strip()
-    assert code == 3 and "no topic /nope" in err
+    assert code == 3 and "topic /nope (scan) is not in the bag" in err
 
 
 def test_check_on_the_acfr_pair(data_dir, tmp_path):

@@ -240,8 +240,7 @@ def test_a_bug_in_a_worker_is_reported_as_a_bug_with_its_traceback():
 
 def test_a_bug_in_the_frame_worker_is_reported_as_a_bug(tour):
     bag, _ = tour
-    frames = FrameWorker(bag / "demo.bag", "/scan", "sensor_msgs/msg/Image",  # scans are not images
-                         TopicSegmentation(), (480, 640))
+    frames = FrameWorker(bag / "demo.bag", "/scan", TopicSegmentation(), (480, 640))  # scans are not images
     try:
         with pytest.raises(InternalError, match="in the frames worker: AttributeError"):
             frames.wait_ready()

@@ -4,8 +4,8 @@ A person judges the calibration by eye, as in the middle panel of the research's
 with a good ``T_cam_lidar`` the points sit on the walls, legs and furniture they hit; a bad
 one shows them sliding off edges, floating above the floor or bending around corners.
 
-Input: an image and a scan (files, or arrays), or a bag and a time. The bag decoding here is
-deliberately small (``LaserScan``, ``Image``, ``CompressedImage``) and private.
+Input: an image and a scan (files, or arrays), or a bag and a time (read through :mod:`semmap.io`,
+which picks the topics as ``semmap build`` does and decodes the messages into semmap records).
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -21,7 +20,7 @@ from numpy.typing import NDArray
 
 from ..errors import BagError, ConfigError
 from ..geometry import project_points, se3_apply
-from ..records import Calibration
+from ..records import Calibration, Image, Scan
 from .scans import ranges_to_points, read_scan_points
 
 __all__ = ["CheckResult", "draw_scan_on_image", "check_calibration", "read_image", "frame_from_bag"]
@@ -29,8 +28,6 @@ __all__ = ["CheckResult", "draw_scan_on_image", "check_calibration", "read_image
 log = logging.getLogger(__name__)
 
 _LOW = 20  # skip turbo's near-black end so near points stay visible on dark things
-
-_SKIP_IMAGE_WORDS = ("label", "mask", "seg", "depth", "semantic")
 
 
 @dataclass(frozen=True)
@@ -137,32 +134,15 @@ def draw_scan_on_image(
 
 # -- bags -------------------------------------------------------------------------------------
 
-def _stamp(msg: Any) -> int:
-    s = msg.header.stamp
-    return int(s.sec) * 1_000_000_000 + int(getattr(s, "nanosec", getattr(s, "nsec", 0)))
-
-
-def _decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if msgtype.endswith("CompressedImage"):
-        img = cv2.imdecode(data, cv2.IMREAD_COLOR)
-        if img is None:
-            raise BagError(f"cannot decode a {msg.format!r} CompressedImage")
-        return img
-    enc = str(msg.encoding)
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    if enc in ("rgb8", "bgr8", "8UC3", "rgba8", "bgra8"):
-        ch = 4 if enc in ("rgba8", "bgra8") else 3
-        a = data.reshape(h, step)[:, : w * ch].reshape(h, w, ch)
-        code = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR}.get(enc)
-        return cv2.cvtColor(a, code) if code is not None else a.copy()
-    if enc in ("mono8", "8UC1"):
-        return cv2.cvtColor(data.reshape(h, step)[:, :w].copy(), cv2.COLOR_GRAY2BGR)
-    if enc in ("mono16", "16UC1"):
-        a = data.reshape(h, step)[:, : 2 * w].copy().view(">u2" if msg.is_bigendian else "<u2").reshape(h, w)
-        a8 = cv2.normalize(a.astype(np.float32), None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-        return cv2.cvtColor(a8, cv2.COLOR_GRAY2BGR)
-    raise BagError(f"image encoding {enc!r} is not supported for the check (use rgb8, bgr8, mono8, mono16)")
+def _bgr(image: Image) -> NDArray[np.uint8]:
+    """A decoded camera image as BGR uint8 for the picture: grey images (mono16 and float ones
+    stretched from their darkest to their brightest pixel) as three equal channels."""
+    a = np.asarray(image.data)
+    if image.encoding == "rgb8":
+        return np.ascontiguousarray(a[:, :, ::-1])
+    if a.dtype != np.uint8:
+        a = cv2.normalize(np.nan_to_num(a.astype(np.float32)), None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return cv2.cvtColor(a, cv2.COLOR_GRAY2BGR)
 
 
 def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic: str | None = None,
@@ -172,65 +152,40 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
     the bag), and the scan nearest it.
 
     Returns (BGR image, (N, 3) scan points in the scan's frame, image stamp ns, scan stamp ns,
-    scan frame_id). Topics are found by type when not given (image topics named like labels,
-    masks or depth are passed over).
+    scan frame_id). Topics not given are picked as ``semmap build`` picks them
+    (:func:`~semmap.io.topics.pick_topics`: image topics named like labels, masks or depth are
+    passed over).
     """
-    from ..io.bag import iter_messages, open_bag
+    from ..config import TopicsConfig
+    from ..io.bag import read_bag
+    from ..io.topics import pick_topics
+    from ..io.tour import read_tour_manifest
 
-    with open_bag(bag) as reader:
-        conns = reader.connections
-        by_topic = {c.topic: c.msgtype for c in conns}
-        if scan_topic is None:
-            scans = sorted({c.topic for c in conns if c.msgtype == "sensor_msgs/msg/LaserScan"})
-            if len(scans) != 1:
-                raise BagError(f"{bag}: {'no' if not scans else 'several'} LaserScan topics "
-                               f"({', '.join(scans) or '-'}); name one with --scan-topic")
-            scan_topic = scans[0]
-        if image_topic is None:
-            kinds = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-            imgs = sorted({c.topic for c in conns if c.msgtype in kinds
-                           and not any(w in c.topic.lower() for w in _SKIP_IMAGE_WORDS)})
-            if len(imgs) != 1:
-                raise BagError(f"{bag}: {'no' if not imgs else 'several'} camera image topics "
-                               f"({', '.join(imgs) or '-'}); name one with --image-topic")
-            image_topic = imgs[0]
-        for t in (scan_topic, image_topic):
-            if t not in by_topic:
-                raise BagError(f"{bag}: no topic {t} (topics: {', '.join(sorted(by_topic))})")
-        start = reader.start_time
+    path, _, manifest = read_tour_manifest(bag)
+    with read_bag(path) as src:
+        topics = pick_topics(src.types, TopicsConfig(scan=scan_topic, image=image_topic), path, "rgb", manifest,
+                             kinds=("scan", "frames"), required=("scan", "frames"),
+                             options={"scan": "--scan-topic", "image": "--image-topic"})
+        assert topics.scan and topics.frames is not None  # required
+        start, end = src.start_ns, src.end_ns
         if time_s is None:
-            time_s = (reader.end_time - start) * 0.5e-9
+            time_s = (end - start) * 0.5e-9
         target = start + int(round(time_s * 1e9))
-        if not start <= target <= reader.end_time:
-            raise BagError(f"{bag}: time {time_s:g} s is outside the bag "
-                           f"(0 to {(reader.end_time - start) / 1e9:.1f} s)")
-        best: tuple[int, Any] | None = None  # the image nearest the time asked for (bag time)
-        for _, t_ns, msg in iter_messages(bag, [image_topic], reader=reader):
-            if best is None or abs(t_ns - target) < abs(best[0] - target):
-                best = (t_ns, msg)
-            elif t_ns > target:
-                break
+        if not start <= target <= end:
+            raise BagError(f"{bag}: time {time_s:g} s is outside the bag (0 to {(end - start) / 1e9:.1f} s)")
+        found = src.nearest(topics.frames, target)  # the image nearest the time asked for (bag time)
+        if found is None:
+            raise BagError(f"{bag}: no messages on {topics.frames}")
+        t_img, image = found
+        window = 2_000_000_000  # the scan nearest the image (header stamps), within 2 s of it (bag time)
+        best: Scan | None = None
+        for _, _, scan in src.records([topics.scan], start_ns=t_img - window, stop_ns=t_img + window):
+            if best is None or abs(scan.stamp_ns - image.stamp_ns) < abs(best.stamp_ns - image.stamp_ns):
+                best = scan
         if best is None:
-            raise BagError(f"{bag}: no messages on {image_topic}")
-        img_msg = best[1]
-        img = _decode_image(img_msg, by_topic[image_topic])
-        img_stamp = _stamp(img_msg)
-        best_s: tuple[int, Any] | None = None  # the scan nearest the image (header stamps), within 2 s of it
-        window = 2_000_000_000
-        for _, t_ns, msg in iter_messages(bag, [scan_topic], reader=reader):
-            if t_ns < best[0] - window:
-                continue
-            if t_ns > best[0] + window:
-                break
-            st = _stamp(msg)
-            if best_s is None or abs(st - img_stamp) < abs(best_s[0] - img_stamp):
-                best_s = (st, msg)
-        if best_s is None:
-            raise BagError(f"{bag}: no scan on {scan_topic} within 2 s of the image at {time_s:g} s")
-        m = best_s[1]
-        pts = ranges_to_points(np.asarray(m.ranges), float(m.angle_min), float(m.angle_increment),
-                               float(m.range_min), float(m.range_max))
-        return img, pts, img_stamp, best_s[0], str(m.header.frame_id)
+            raise BagError(f"{bag}: no scan on {topics.scan} within 2 s of the image at {time_s:g} s")
+    pts = ranges_to_points(best.ranges, best.angle_min, best.angle_increment, best.range_min, best.range_max)
+    return _bgr(image), pts, image.stamp_ns, best.stamp_ns, best.frame_id
 
 
 def check_calibration(

@@ -1,13 +1,12 @@
 """The one rosbags adapter: writing and reading ROS1 ``.bag`` and ROS2 (mcap, sqlite3) bags.
 
-Nothing else in semmap imports :mod:`rosbags`. The writer takes semmap records
-and plain numbers and serialises real ROS messages; the reader side gives
-:func:`bag_info` (what ``semmap info`` prints) and raw message iteration.
+Nothing outside :mod:`semmap.io` imports :mod:`rosbags` or sees its objects. The writer takes semmap
+records and plain numbers and serialises real ROS messages; the reader side gives :func:`bag_info`
+(what ``semmap info`` prints), :func:`read_bag` (a bag opened once: its topics, counts, time span, and
+its messages as semmap records) and raw message iteration for :mod:`semmap.io`.
 
-A ROS1 bag whose index is as ROS writes it is read without rosbags' per-message index (which costs
-about 180 bytes per message of every topic while a bag is open): through a table of its chunks,
-each chunk's index read when the stream reaches it (:class:`_Ros1Reader`). The table takes about 100
-bytes per chunk (a byte per message in semmap's tours), a stream the entries of a chunk or two.
+A healthy bag is read by semmap's own record reader (:mod:`semmap.io.fastbag`: bounded memory on
+long bags, with the rosbags versions it was tested with), anything else by rosbags' reader.
 
 Bags rosbags cannot read are read as ROS's own tools read them where that is possible: a ROS1
 bag whose index rosbags rejects (2010-era index records, a recording never closed, an index
@@ -19,20 +18,17 @@ is wrong with it.
 
 from __future__ import annotations
 
-import array
 import bisect
-import heapq
+import contextlib
 import io
 import logging
 import mmap
 import os
-import re
 import struct
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any, Literal
 
 import numpy as np
@@ -41,6 +37,26 @@ from numpy.typing import NDArray
 from ..errors import BagError, SemmapError
 from ..geometry import se3_to_translation_quaternion, yaw_to_quaternion
 from ..records import CameraIntrinsics, Image, Scan
+from . import fastbag
+from .ros1format import (
+    MAGIC,
+    OP_CHUNK,
+    OP_CHUNK_INFO,
+    OP_CONNECTION,
+    OP_FILE_HEADER,
+    OP_INDEX,
+    OP_MSG,
+    TIME,
+    U32,
+    U64,
+    Damaged,
+    Truncated,
+    field_int,
+    file_header,
+    header_fields,
+    record_at,
+    record_op,
+)
 
 __all__ = [
     "BagFormat",
@@ -50,6 +66,13 @@ __all__ = [
     "BagInfo",
     "bag_info",
     "open_bag",
+    "read_bag",
+    "OpenBag",
+    "ReadStats",
+    "iter_messages",
+    "iter_records",
+    "message_count",
+    "topic_types",
     "resolve_bag_path",
     "bag_suffix",
 ]
@@ -386,27 +409,12 @@ def resolve_bag_path(path: str | Path) -> Path:
 # ---------------------------------------------------------------------------------------
 # ROS1 bags whose index rosbags cannot use: read it by ROS's rules, or rebuild it from the chunks
 #
-# A ROS1 bag (format 2.0) is the line ``#ROSBAG V2.0`` and then records: a header (a 4-byte length,
-# then fields ``<4-byte length>name=value``, ``op`` among them) and data (a 4-byte length, then the
-# bytes). The file header (op 3) gives ``index_pos``; chunks (op 5) hold connection (op 7) and
-# message (op 2) records, and each is followed by one index data record (op 4) per connection in
-# it; at ``index_pos`` come the connection records and one chunk info record (op 6) per chunk.
-# The reading rules here are those of ROS's own reader (ros_comm tools/rosbag/src/rosbag/bag.py).
+# (the record layout: :mod:`semmap.io.ros1format`; the reading rules are those of ROS's own reader,
+# ros_comm tools/rosbag/src/rosbag/bag.py)
 
-_MAGIC = b"#ROSBAG V2.0\n"
-_OP_MSG, _OP_FILE_HEADER, _OP_INDEX, _OP_CHUNK, _OP_CHUNK_INFO, _OP_CONNECTION = 2, 3, 4, 5, 6, 7
-_U32, _U64, _TIME = struct.Struct("<I"), struct.Struct("<Q"), struct.Struct("<II")
-#: rebuilt indexes of the last few bags, by path and file identity (a build opens its bag several times)
+#: rebuilt indexes of the last few bags, by path and file identity (commands that open a bag again reuse them)
 _REBUILT: dict[tuple[str, int, int, int], _Ros1Index] = {}
 _REBUILT_KEEP = 4
-
-
-class _Damaged(Exception):
-    """What is wrong with a ROS1 bag, and where (becomes a :class:`BagError` naming the file)."""
-
-
-class _Truncated(_Damaged):
-    """The file ends inside a record."""
 
 
 @dataclass
@@ -428,94 +436,30 @@ class _Ros1Index:
     rebuilt: bool = False  # from the chunks (else the bag's own index, read by ROS's rules)
 
 
-def _fields(buf: Any, start: int, end: int, what: str) -> dict[str, bytes]:
-    """The ``name=value`` fields of a record header (a repeated name: the last, as ROS reads it); unknown
-    fields are kept, and ignored."""
-    out: dict[str, bytes] = {}
-    pos = start
-    while pos < end:
-        if pos + 4 > end:
-            raise _Damaged(f"{what} has a malformed header")
-        (size,) = _U32.unpack_from(buf, pos)
-        pos += 4
-        if pos + size > end:
-            raise _Damaged(f"{what} has a header field longer than its header")
-        name, sep, value = bytes(buf[pos:pos + size]).partition(b"=")
-        if not sep:
-            raise _Damaged(f"{what} has a header field without '='")
-        out[name.decode("latin-1")] = value
-        pos += size
-    return out
-
-
-def _record(buf: Any, pos: int, end: int, what: str, cut: type[_Damaged] = _Damaged) -> tuple[dict[str, bytes], int, int]:
-    """Header fields, data start and data length (as written) of the record at ``pos`` (before ``end``)."""
-    if pos + 4 > end:
-        raise cut(f"{what} is cut off (at byte {end})")
-    (hlen,) = _U32.unpack_from(buf, pos)
-    if pos + 8 + hlen > end:
-        raise cut(f"{what} has a {hlen}-byte header, but the data ends at byte {end}")
-    fields = _fields(buf, pos + 4, pos + 4 + hlen, what)
-    (dlen,) = _U32.unpack_from(buf, pos + 4 + hlen)
-    return fields, pos + 8 + hlen, dlen
-
-
-def _field(fields: dict[str, bytes], name: str, codec: struct.Struct, what: str) -> int:
-    value = fields.get(name)
-    if value is None or len(value) != codec.size:
-        raise _Damaged(f"{what} has no valid {name!r} field")
-    parts = codec.unpack(value)
-    return parts[0] if len(parts) == 1 else parts[0] * 1_000_000_000 + parts[1]
-
-
-def _op(fields: dict[str, bytes], what: str) -> int:
-    value = fields.get("op")
-    if value is None or len(value) != 1:
-        raise _Damaged(f"{what} has no valid 'op' field")
-    return value[0]
-
-
 def _connection(fields: dict[str, bytes], buf: Any, start: int, dlen: int, end: int,
                 what: str) -> tuple[int, bytes, list[tuple[bytes, bytes]]]:
     """(id, topic, connection header) of a connection record."""
     if start + dlen > end:
-        raise _Damaged(f"{what} is longer than the data it is in")
-    conn = _field(fields, "conn", _U32, what)
-    header = _fields(buf, start, start + dlen, what)
+        raise Damaged(f"{what} is longer than the data it is in")
+    conn = field_int(fields, "conn", U32, what)
+    header = header_fields(buf, start, start + dlen, what)
     topic = fields.get("topic", header.get("topic", b""))
     for key, value in (("topic", topic), *((k, header.get(k)) for k in ("type", "md5sum", "message_definition"))):
         if value is None:
-            raise _Damaged(f"{what} (connection {conn}) has no {key!r}")
+            raise Damaged(f"{what} (connection {conn}) has no {key!r}")
         try:
             value.decode()
         except UnicodeDecodeError:
-            raise _Damaged(f"{what} (connection {conn}) has a {key!r} that is not UTF-8 text") from None
+            raise Damaged(f"{what} (connection {conn}) has a {key!r} that is not UTF-8 text") from None
     return conn, topic, [(k.encode("latin-1"), v) for k, v in header.items()]
 
 
-def _file_header(buf: Any, size: int) -> tuple[int, int, int, int]:
-    """(index_pos, conn_count, chunk_count, position of the first record after the file header)."""
-    if bytes(buf[:len(_MAGIC)]) != _MAGIC:
-        version = re.match(rb"#ROSBAG V(\d+\.\d+)\n", bytes(buf[:32]))
-        if version:
-            raise _Damaged(f"bag format {version.group(1).decode()} is not supported (only 2.0)")
-        raise _Damaged("not a ROS1 bag (it does not start with '#ROSBAG V2.0')")
-    what = "the file header"
-    fields, start, dlen = _record(buf, len(_MAGIC), size, what, _Truncated)
-    if _op(fields, what) != _OP_FILE_HEADER:
-        raise _Damaged(f"{what} is not a file header record")
-    if fields.get("encryptor"):
-        raise _Damaged(f"the bag is encrypted ({fields['encryptor'].decode('latin-1')}), which semmap cannot read")
-    return (_field(fields, "index_pos", _U64, what), _field(fields, "conn_count", _U32, what),
-            _field(fields, "chunk_count", _U32, what), start + dlen)
-
-
-def _chunk_record(buf: Any, pos: int, size: int, cut: type[_Damaged] = _Damaged) -> tuple[dict[str, bytes], int, int]:
+def _chunk_record(buf: Any, pos: int, size: int, cut: type[Damaged] = Damaged) -> tuple[dict[str, bytes], int, int]:
     """Header fields, data start and data length of the chunk record at ``pos``."""
     what = f"the chunk at byte {pos}"
-    fields, start, dlen = _record(buf, pos, size, what, cut)
-    if _op(fields, what) != _OP_CHUNK:
-        raise _Damaged(f"the record at byte {pos} is not a chunk")
+    fields, start, dlen = record_at(buf, pos, size, what, cut)
+    if record_op(fields, what) != OP_CHUNK:
+        raise Damaged(f"the record at byte {pos} is not a chunk")
     if dlen == 0:
         raise cut(f"{what} was never finished (its data length is 0)")
     if start + dlen > size:
@@ -524,61 +468,61 @@ def _chunk_record(buf: Any, pos: int, size: int, cut: type[_Damaged] = _Damaged)
 
 
 def _index_data(buf: Any, pos: int, size: int,
-                cut: type[_Damaged] = _Damaged) -> tuple[int, int, int, int, dict[str, bytes]]:
+                cut: type[Damaged] = Damaged) -> tuple[int, int, int, int, dict[str, bytes]]:
     """(connection, count, entries start, data length as written, header fields) of an index data record.
 
     The data length is not used, as ROS's reader does not use it (C Turtle's rosbag, before
     1.1.15, wrote a wrong one): the entries are ``count`` x 12 bytes (time sec, nsec, offset).
     """
     what = f"the index data record at byte {pos}"
-    fields, start, dlen = _record(buf, pos, size, what, cut)
-    if _op(fields, what) != _OP_INDEX:
-        raise _Damaged(f"the record at byte {pos} is not index data")
-    if _field(fields, "ver", _U32, what) != 1:
-        raise _Damaged(f"{what} has an unknown version")
-    count = _field(fields, "count", _U32, what)
+    fields, start, dlen = record_at(buf, pos, size, what, cut)
+    if record_op(fields, what) != OP_INDEX:
+        raise Damaged(f"the record at byte {pos} is not index data")
+    if field_int(fields, "ver", U32, what) != 1:
+        raise Damaged(f"{what} has an unknown version")
+    count = field_int(fields, "count", U32, what)
     if start + 12 * count > size:
         raise cut(f"{what} holds {count} entries, but the file ends at byte {size}")
-    return _field(fields, "conn", _U32, what), count, start, dlen, fields
+    return field_int(fields, "conn", U32, what), count, start, dlen, fields
 
 
 def _index_as_ros_reads(buf: Any, size: int, index_pos: int, conn_count: int, chunk_count: int) -> _Ros1Index:
     """The bag's own index, read as ROS's reader reads it: fields in any order, unknown fields
-    skipped, the index data records' data length ignored. Raises :class:`_Damaged` when it does not
-    add up (the chunks are walked then), :class:`_Truncated` when the file ends before its index."""
+    skipped, the index data records' data length ignored. Raises :class:`Damaged` when it does not
+    add up (the chunks are walked then), :class:`Truncated` when the file ends before its index."""
     if index_pos == 0:
-        raise _Damaged("it is not indexed: its recording was never closed")
+        raise Damaged("it is not indexed: its recording was never closed")
     if index_pos >= size:
-        raise _Truncated(f"bag is truncated: its index should start at byte {index_pos}, but the file ends "
+        raise Truncated(f"bag is truncated: its index should start at byte {index_pos}, but the file ends "
                          f"at byte {size}")
     pos = index_pos
     connections: dict[int, tuple[bytes, list[tuple[bytes, bytes]]]] = {}
     for _ in range(conn_count):
         what = f"the connection record at byte {pos}"
-        fields, start, dlen = _record(buf, pos, size, what)
-        if _op(fields, what) != _OP_CONNECTION:
-            raise _Damaged(f"its index holds {len(connections)} connection records, its file header says {conn_count}")
+        fields, start, dlen = record_at(buf, pos, size, what)
+        if record_op(fields, what) != OP_CONNECTION:
+            raise Damaged(f"its index holds {len(connections)} connection records, its file header says {conn_count}")
         conn, topic, header = _connection(fields, buf, start, dlen, size, what)
         connections.setdefault(conn, (topic, header))
         pos = start + dlen
     infos: list[tuple[int, int, dict[int, int]]] = []  # (chunk pos, end time, messages per connection)
     for _ in range(chunk_count):
         what = f"the chunk info record at byte {pos}"
-        fields, start, _dlen = _record(buf, pos, size, what)
-        if _op(fields, what) != _OP_CHUNK_INFO or _field(fields, "ver", _U32, what) != 1:
-            raise _Damaged(f"its index holds {len(infos)} chunk info records, its file header says {chunk_count}")
-        count = _field(fields, "count", _U32, what)
+        fields, start, _dlen = record_at(buf, pos, size, what)
+        if record_op(fields, what) != OP_CHUNK_INFO or field_int(fields, "ver", U32, what) != 1:
+            raise Damaged(f"its index holds {len(infos)} chunk info records, its file header says {chunk_count}")
+        count = field_int(fields, "count", U32, what)
         if start + 8 * count > size:
-            raise _Damaged(f"{what} is cut off")
+            raise Damaged(f"{what} is cut off")
         pairs = np.frombuffer(buf[start:start + 8 * count], dtype="<u4").reshape(-1, 2)  # (a copy: the map closes)
-        infos.append((_field(fields, "chunk_pos", _U64, what), _field(fields, "end_time", _TIME, what),
+        infos.append((field_int(fields, "chunk_pos", U64, what), field_int(fields, "end_time", TIME, what),
                       dict(zip(pairs[:, 0].tolist(), pairs[:, 1].tolist()))))
         pos = start + 8 * count
     chunks = []
     quirks: dict[str, str] = {}
     for chunk_pos, end_ns, counts in infos:
         fields, start, dlen = _chunk_record(buf, chunk_pos, size)
-        unpacked = _field(fields, "size", _U32, f"the chunk at byte {chunk_pos}")
+        unpacked = field_int(fields, "size", U32, f"the chunk at byte {chunk_pos}")
         entries: dict[int, list[tuple[int, int]]] = {}
         pos = start + dlen
         for _ in range(len(counts)):
@@ -592,7 +536,7 @@ def _index_as_ros_reads(buf: Any, size: int, index_pos: int, conn_count: int, ch
             times = rows[:, 0] * 1_000_000_000 + rows[:, 1]
             if conn not in connections or counts.get(conn) != count or conn in entries or \
                     (count and (rows[:, 2].max() >= unpacked or times.max() > end_ns)):
-                raise _Damaged(f"the index data record at byte {pos} does not match the chunk info of the chunk "
+                raise Damaged(f"the index data record at byte {pos} does not match the chunk info of the chunk "
                                f"at byte {chunk_pos}")
             entries[conn] = list(zip(times.tolist(), rows[:, 2].tolist()))
             pos = at + 12 * count
@@ -608,11 +552,11 @@ def _decompress(buf: Any, start: int, dlen: int, compression: bytes, what: str) 
         return buf[start:start + dlen]
     func = decompressors.get(compression.decode("latin-1"))
     if func is None:
-        raise _Damaged(f"{what} uses compression {compression.decode('latin-1')!r}, which semmap cannot read")
+        raise Damaged(f"{what} uses compression {compression.decode('latin-1')!r}, which semmap cannot read")
     try:
         return func(bytes(buf[start:start + dlen]))
     except Exception as exc:  # noqa: BLE001 - bz2 raises OSError, lz4 RuntimeError, ...
-        raise _Damaged(f"{what} cannot be decompressed ({compression.decode('latin-1')}: {exc})") from None
+        raise Damaged(f"{what} cannot be decompressed ({compression.decode('latin-1')}: {exc})") from None
 
 
 def _walk_chunk(data: Any, what: str,
@@ -622,16 +566,16 @@ def _walk_chunk(data: Any, what: str,
     at, end = 0, len(data)
     while at < end:
         where = f"the record at offset {at} of {what}"
-        fields, start, dlen = _record(data, at, end, where)
+        fields, start, dlen = record_at(data, at, end, where)
         if start + dlen > end:
-            raise _Damaged(f"{where} is longer than its chunk")
-        op = _op(fields, where)
-        if op == _OP_CONNECTION:
+            raise Damaged(f"{where} is longer than its chunk")
+        op = record_op(fields, where)
+        if op == OP_CONNECTION:
             conn, topic, header = _connection(fields, data, start, dlen, end, where)
             connections.setdefault(conn, (topic, header))
-        elif op == _OP_MSG:
-            conn = _field(fields, "conn", _U32, where)
-            entries.setdefault(conn, []).append((_field(fields, "time", _TIME, where), at))
+        elif op == OP_MSG:
+            conn = field_int(fields, "conn", U32, where)
+            entries.setdefault(conn, []).append((field_int(fields, "time", TIME, where), at))
         at = start + dlen
     return entries
 
@@ -641,8 +585,8 @@ def _is_record(buf: Any, pos: int, size: int) -> bool:
     if pos == size:
         return True
     try:
-        return _op(_record(buf, pos, size, "")[0], "") in (_OP_INDEX, _OP_CHUNK, _OP_CHUNK_INFO, _OP_CONNECTION)
-    except _Damaged:
+        return record_op(record_at(buf, pos, size, "")[0], "") in (OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION)
+    except Damaged:
         return False
 
 
@@ -663,48 +607,49 @@ def _index_from_chunks(buf: Any, size: int, first: int, index_pos: int, why: str
     while pos < size:
         try:
             what = f"the record at byte {pos}"
-            fields, start, dlen = _record(buf, pos, size, what, _Truncated)
-            op = _op(fields, what)
-            if op == _OP_CHUNK:
+            fields, start, dlen = record_at(buf, pos, size, what, Truncated)
+            op = record_op(fields, what)
+            if op == OP_CHUNK:
                 what = f"the chunk at byte {pos}"
-                fields, start, dlen = _chunk_record(buf, pos, size, _Truncated)
+                fields, start, dlen = _chunk_record(buf, pos, size, Truncated)
                 data = _decompress(buf, start, dlen, fields.get("compression", b"none"), what)
                 entries = _walk_chunk(data, what, connections)
                 if entries:
                     chunks.append(_Ros1Chunk(pos, start + dlen, entries))
                 nxt = start + dlen
-            elif op == _OP_INDEX:
-                _, count, at, dlen, _ = _index_data(buf, pos, size, _Truncated)
+            elif op == OP_INDEX:
+                _, count, at, dlen, _ = _index_data(buf, pos, size, Truncated)
                 nxt = at + 12 * count
                 if not _is_record(buf, nxt, size) and at + dlen <= size and _is_record(buf, at + dlen, size):
                     nxt = at + dlen
-            elif op == _OP_CONNECTION:
-                conn, topic, header = _connection(fields, buf, start, dlen, size, f"the connection record at byte {pos}")
+            elif op == OP_CONNECTION:
+                conn, topic, header = _connection(fields, buf, start, dlen, size,
+                                                  f"the connection record at byte {pos}")
                 connections.setdefault(conn, (topic, header))
                 nxt = start + dlen
-            elif op in (_OP_MSG, _OP_FILE_HEADER):
-                raise _Damaged(f"{what} (op {op}) is out of place")
+            elif op in (OP_MSG, OP_FILE_HEADER):
+                raise Damaged(f"{what} (op {op}) is out of place")
             else:  # chunk info, or a kind of record this reader does not know: skipped, as ROS does
                 nxt = start + dlen
             if nxt > size:
-                raise _Truncated(f"{what} is cut off (the file ends at byte {size})")
+                raise Truncated(f"{what} is cut off (the file ends at byte {size})")
             pos = nxt
-        except _Damaged as exc:
+        except Damaged as exc:
             if chunks and first < index_pos <= pos:  # in the old index, after the last chunk
                 why = f"{why}; its old index is damaged too ({exc})"
                 break
-            if index_pos == 0 and isinstance(exc, _Truncated):
+            if index_pos == 0 and isinstance(exc, Truncated):
                 cut = str(exc)
                 dropped = f"; dropped its unfinished end from byte {pos}: {cut}"
                 break
-            raise _Truncated(f"bag is truncated: {exc}") if isinstance(exc, _Truncated) else \
-                _Damaged(f"bag is damaged: {exc}") from None
+            raise Truncated(f"bag is truncated: {exc}") if isinstance(exc, Truncated) else \
+                Damaged(f"bag is damaged: {exc}") from None
     if dropped and not chunks:
-        raise _Truncated(f"bag is truncated: it was never closed, and no chunk in it is complete ({cut})")
+        raise Truncated(f"bag is truncated: it was never closed, and no chunk in it is complete ({cut})")
     for chunk in chunks:
         for conn in chunk.entries:
             if conn not in connections:
-                raise _Damaged(f"bag is damaged: the chunk at byte {chunk.pos} holds messages of connection {conn}, "
+                raise Damaged(f"bag is damaged: the chunk at byte {chunk.pos} holds messages of connection {conn}, "
                                f"which no connection record defines")
     return _Ros1Index(connections, chunks, f"rebuilt its index from its chunks, as `rosbag reindex` would "
                                            f"({why}{dropped})", rebuilt=True)
@@ -728,14 +673,14 @@ def _ros1_index(p: Path, why: str, trust_index: bool = True) -> _Ros1Index:
         buf.close()
         return cached
     try:
-        index_pos, conn_count, chunk_count, first = _file_header(buf, st.st_size)
+        index_pos, conn_count, chunk_count, first = file_header(buf, st.st_size)
         index = None
         if trust_index:
             try:
                 index = _index_as_ros_reads(buf, st.st_size, index_pos, conn_count, chunk_count)
-            except _Truncated:
+            except Truncated:
                 raise
-            except _Damaged as exc:
+            except Damaged as exc:
                 why = str(exc)
         if index is None:
             index = _index_from_chunks(buf, st.st_size, first, index_pos, why)
@@ -744,7 +689,7 @@ def _ros1_index(p: Path, why: str, trust_index: bool = True) -> _Ros1Index:
         if any(b"roslib/Header" in v for _, header in index.connections.values() for _, v in header):
             notes.append("its message definitions name roslib/Header, read as std_msgs/Header (as genpy does)")
         index.how = "; ".join(notes) or f"read its own index as ROS's reader does ({why})"
-    except _Damaged as exc:
+    except Damaged as exc:
         msg = str(exc)
         raise BagError(f"{p}: {msg if msg.startswith(('bag ', 'not ')) else 'bag is damaged: ' + msg}") from None
     finally:
@@ -757,8 +702,8 @@ def _ros1_index(p: Path, why: str, trust_index: bool = True) -> _Ros1Index:
 
 
 def _record_bytes(fields: list[tuple[bytes, bytes]], data: bytes) -> bytes:
-    head = b"".join(_U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in fields)
-    return _U32.pack(len(head)) + head + _U32.pack(len(data)) + data
+    head = b"".join(U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in fields)
+    return U32.pack(len(head)) + head + U32.pack(len(data)) + data
 
 
 def _modern_definition(header: list[tuple[bytes, bytes]]) -> list[tuple[bytes, bytes]]:
@@ -769,7 +714,7 @@ def _modern_definition(header: list[tuple[bytes, bytes]]) -> list[tuple[bytes, b
 
 
 def _time_bytes(ns: int) -> bytes:
-    return _TIME.pack(*divmod(ns, 1_000_000_000))
+    return TIME.pack(*divmod(ns, 1_000_000_000))
 
 
 def _view_parts(index: _Ros1Index) -> list[bytes | tuple[int, int]]:
@@ -777,33 +722,33 @@ def _view_parts(index: _Ros1Index) -> list[bytes | tuple[int, int]]:
     index data records, then the connection and chunk info records, behind a file header."""
     chunk_part: list[bytes | tuple[int, int]] = []
     chunk_at: list[int] = []
-    header_len = len(_record_bytes([(b"op", bytes([_OP_FILE_HEADER])), (b"index_pos", bytes(8)),
+    header_len = len(_record_bytes([(b"op", bytes([OP_FILE_HEADER])), (b"index_pos", bytes(8)),
                                     (b"conn_count", bytes(4)), (b"chunk_count", bytes(4))], b""))
-    at = len(_MAGIC) + header_len
+    at = len(MAGIC) + header_len
     for chunk in index.chunks:
         chunk_at.append(at)
         chunk_part.append((chunk.pos, chunk.end - chunk.pos))
         at += chunk.end - chunk.pos
         for conn, entries in sorted(chunk.entries.items()):
             rows = np.array([(t // 1_000_000_000, t % 1_000_000_000, off) for t, off in entries], dtype="<u4")
-            rec = _record_bytes([(b"op", bytes([_OP_INDEX])), (b"ver", _U32.pack(1)), (b"conn", _U32.pack(conn)),
-                                 (b"count", _U32.pack(len(entries)))], rows.tobytes())
+            rec = _record_bytes([(b"op", bytes([OP_INDEX])), (b"ver", U32.pack(1)), (b"conn", U32.pack(conn)),
+                                 (b"count", U32.pack(len(entries)))], rows.tobytes())
             chunk_part.append(rec)
             at += len(rec)
     tail = bytearray()
     for conn, (topic, header) in sorted(index.connections.items()):
-        data = b"".join(_U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in _modern_definition(header))
-        tail += _record_bytes([(b"op", bytes([_OP_CONNECTION])), (b"conn", _U32.pack(conn)), (b"topic", topic)], data)
+        data = b"".join(U32.pack(len(k) + 1 + len(v)) + k + b"=" + v for k, v in _modern_definition(header))
+        tail += _record_bytes([(b"op", bytes([OP_CONNECTION])), (b"conn", U32.pack(conn)), (b"topic", topic)], data)
     for chunk, pos in zip(index.chunks, chunk_at):
         times = [t for entries in chunk.entries.values() for t, _ in entries]
-        pairs = b"".join(_U32.pack(c) + _U32.pack(len(e)) for c, e in sorted(chunk.entries.items()))
-        tail += _record_bytes([(b"op", bytes([_OP_CHUNK_INFO])), (b"ver", _U32.pack(1)), (b"chunk_pos", _U64.pack(pos)),
+        pairs = b"".join(U32.pack(c) + U32.pack(len(e)) for c, e in sorted(chunk.entries.items()))
+        tail += _record_bytes([(b"op", bytes([OP_CHUNK_INFO])), (b"ver", U32.pack(1)), (b"chunk_pos", U64.pack(pos)),
                                (b"start_time", _time_bytes(min(times))), (b"end_time", _time_bytes(max(times))),
-                               (b"count", _U32.pack(len(chunk.entries)))], pairs)
-    header = _record_bytes([(b"op", bytes([_OP_FILE_HEADER])), (b"index_pos", _U64.pack(at)),
-                            (b"conn_count", _U32.pack(len(index.connections))),
-                            (b"chunk_count", _U32.pack(len(index.chunks)))], b"")
-    return [_MAGIC + header, *chunk_part, bytes(tail)]
+                               (b"count", U32.pack(len(chunk.entries)))], pairs)
+    header = _record_bytes([(b"op", bytes([OP_FILE_HEADER])), (b"index_pos", U64.pack(at)),
+                            (b"conn_count", U32.pack(len(index.connections))),
+                            (b"chunk_count", U32.pack(len(index.chunks)))], b"")
+    return [MAGIC + header, *chunk_part, bytes(tail)]
 
 
 class _SplicedFile(io.RawIOBase):
@@ -905,569 +850,6 @@ class _RebuiltBagPath:
         return f"_RebuiltBagPath({str(self.path)!r})"
 
 
-# ---------------------------------------------------------------------------------------
-# Healthy ROS1 bags, read without a per-message index
-#
-# rosbags' ROS1 ``Reader.open`` reads every index data record of the bag into one Python
-# ``IndexData`` per message, of every topic, and keeps them while it is open: about 180 bytes per bag
-# message (58 MB for a 30-minute tour of 324,000 messages), in every reader a build holds open. A bag
-# whose index is as ROS and rosbags write it is read here instead from a table of a few numbers per
-# chunk (:class:`_Ros1Table`, made once per bag and process): each chunk's index data records are read
-# again when the stream reaches the chunk, and only for the connections asked for. Anything unusual
-# in a bag's index leaves it to rosbags' own reader and the repairs around it, unchanged.
-
-#: an index data record's first bytes: header length, header (op, ver, conn, count) and data length
-_INDEX_HEAD = 4 + 47 + 4
-_CHUNK_COMPRESSIONS = ("none", "bz2", "lz4")
-#: tables of the last few healthy ROS1 bags, by path and file identity (a build opens its bag about 8 times)
-_TABLES: dict[tuple[str, int, int, int, int], _Ros1Table] = {}
-_TABLES_KEEP = 4
-
-
-class _NotPlain(Exception):
-    """A ROS1 bag's index is not as ROS and rosbags write it: rosbags' own reader takes the bag."""
-
-
-@dataclass
-class _Ros1Table:
-    """What reading a healthy ROS1 bag needs: its connections, and per chunk (in chunk info order) where
-    its data and index data are, its compression, its messages' time span and (connection, count) pairs.
-    About 100 bytes per chunk (a chunk holds about 100 messages in semmap's tours); nothing per message."""
-
-    connections: list[Any]  # rosbags' Connections as read from the index, msgcount set, no owner yet
-    counts: dict[int, int]  # connection id -> messages
-    start_time: int  # as rosbags gives them: the chunk infos' earliest start, latest end + 1 ns
-    end_time: int
-    data_pos: NDArray[np.int64]  # where the chunk's data starts in the file
-    data_size: NDArray[np.int64]  # its length in the file (its index data records follow it)
-    compression: NDArray[np.uint8]  # index into _CHUNK_COMPRESSIONS
-    t_min: NDArray[np.int64]  # its earliest and latest message (bag time, from its index data)
-    t_max: NDArray[np.int64]
-    pair_start: NDArray[np.int64]  # chunk c's pairs are [pair_start[c], pair_start[c + 1])
-    pair_conn: NDArray[np.uint32]
-    pair_count: NDArray[np.uint32]
-    conn_at: int  # where the conn and count values are in an index data record's first _INDEX_HEAD bytes
-    count_at: int
-
-    def index_bytes(self, c: int) -> int:
-        """The length of chunk ``c``'s index data records."""
-        p0, p1 = int(self.pair_start[c]), int(self.pair_start[c + 1])
-        return _INDEX_HEAD * (p1 - p0) + 12 * int(self.pair_count[p0:p1].sum())
-
-
-def _plain_fields(buf: bytes, start: int, end: int, names: set[str], what: str) -> dict[str, bytes]:
-    """A record header's fields, which must be exactly ``names`` (else :class:`_NotPlain`)."""
-    try:
-        fields = _fields(buf, start, end, what)
-    except _Damaged as exc:
-        raise _NotPlain(str(exc)) from None
-    if set(fields) != names:
-        raise _NotPlain(f"{what} has fields {sorted(fields)}")
-    return fields
-
-
-def _plain_int(fields: dict[str, bytes], name: str, codec: struct.Struct, what: str) -> int:
-    try:
-        return _field(fields, name, codec, what)
-    except _Damaged as exc:
-        raise _NotPlain(str(exc)) from None
-
-
-class _PRead:
-    """Reads ranges of a file with ``pread`` (nothing mapped, so nothing stays resident); ``ahead``: read
-    up to that many bytes beyond, for the small records read one after the other."""
-
-    def __init__(self, fd: int, size: int) -> None:
-        self.fd, self.size = fd, size
-        self.buf, self.at = b"", 0
-
-    def __call__(self, pos: int, n: int, ahead: int = 0) -> bytes:
-        if pos < 0 or n < 0 or pos + n > self.size:
-            raise _NotPlain(f"{n} bytes at byte {pos} are past the end of the file ({self.size} bytes)")
-        if self.at <= pos and pos + n <= self.at + len(self.buf):
-            return self.buf[pos - self.at:pos - self.at + n]
-        data = os.pread(self.fd, min(n + ahead, self.size - pos), pos)
-        if len(data) < n:
-            raise _NotPlain(f"the file ended while reading byte {pos}")
-        self.buf, self.at = data, pos
-        return data[:n]
-
-
-def _scan_ros1(fd: int, size: int) -> _Ros1Table:
-    """The table of a ROS1 bag whose index is as ROS and rosbags write it; :class:`_NotPlain` otherwise.
-
-    Everything rosbags' ``Reader.open`` checks is checked, more strictly (the exact header fields, every
-    index data record against the chunk info of its chunk, every message's offset inside its chunk), so
-    that a bag read through the table gives what rosbags would give, and a bag that is not read through
-    it is left to rosbags' own reader and the repairs around it, as before.
-    """
-    from rosbags.rosbag1.reader import Reader as Reader1
-
-    read = _PRead(fd, size)
-    head = read(0, min(size, 8192))
-    try:
-        index_pos, conn_count, chunk_count, _ = _file_header(head, len(head))
-        fields = _record(head, len(_MAGIC), len(head), "the file header")[0]
-    except _Damaged as exc:
-        raise _NotPlain(str(exc)) from None
-    if not set(fields) <= {"op", "index_pos", "conn_count", "chunk_count", "encryptor"}:
-        raise _NotPlain(f"the file header has fields {sorted(fields)}")
-    if index_pos == 0 or chunk_count == 0 or conn_count == 0 or index_pos >= size:
-        raise _NotPlain("not indexed, or no chunks")
-
-    def record(pos: int) -> tuple[int, int, int]:
-        """(header length, data length, end) of the index record at ``pos``."""
-        (hlen,) = _U32.unpack(read(pos, 4, 1 << 20))
-        (dlen,) = _U32.unpack(read(pos + 4 + hlen, 4, 1 << 20))
-        return hlen, dlen, pos + 8 + hlen + dlen
-
-    # the connection records, read by rosbags itself (topic and type names normalised as it does)
-    pos = index_pos
-    connections = []
-    for _ in range(conn_count):
-        hlen, dlen, end = record(pos)
-        holder = SimpleNamespace(bio=io.BytesIO(read(pos, end - pos)))
-        conn = Reader1.read_connection(holder)  # type: ignore[arg-type]
-        if holder.bio.tell() != end - pos:
-            raise _NotPlain(f"the connection record at byte {pos} is not what its lengths say")
-        connections.append(conn)
-        pos = end
-    ids = [c.id for c in connections]
-    if len(set(ids)) != len(ids):
-        raise _NotPlain("two connection records share an id")
-    known = set(ids)
-
-    # the chunk infos
-    info_names = {"op", "ver", "chunk_pos", "start_time", "end_time", "count"}
-    chunk_pos: list[int] = []
-    starts: list[int] = []
-    ends: list[int] = []
-    pair_conn, pair_count = array.array("I"), array.array("I")  # 4 bytes each, not a Python int
-    pair_start = array.array("q", [0])
-    for _ in range(chunk_count):
-        hlen, dlen, end = record(pos)
-        what = f"the chunk info record at byte {pos}"
-        rec = read(pos, end - pos)
-        fields = _plain_fields(rec, 4, 4 + hlen, info_names, what)
-        if fields["op"] != bytes([_OP_CHUNK_INFO]) or _plain_int(fields, "ver", _U32, what) != 1:
-            raise _NotPlain(f"{what} is not a chunk info record of version 1")
-        count = _plain_int(fields, "count", _U32, what)
-        if count == 0 or dlen != 8 * count:
-            raise _NotPlain(f"{what} counts {count} connections in {dlen} bytes")
-        pairs = struct.unpack_from(f"<{2 * count}I", rec, 8 + hlen)
-        conns, counts = pairs[0::2], pairs[1::2]
-        if len(set(conns)) != count or not known.issuperset(conns) or min(counts) == 0:
-            raise _NotPlain(f"{what} counts connections twice, unknown ones or none of their messages")
-        chunk_pos.append(_plain_int(fields, "chunk_pos", _U64, what))
-        starts.append(_plain_int(fields, "start_time", _TIME, what))
-        ends.append(_plain_int(fields, "end_time", _TIME, what))
-        pair_conn.extend(conns)
-        pair_count.extend(counts)
-        pair_start.append(len(pair_conn))
-        pos = end
-    if len(set(chunk_pos)) != len(chunk_pos):
-        raise _NotPlain("two chunk infos name the same chunk")
-
-    # each chunk's header, and its index data records checked against its chunk info
-    n = len(chunk_pos)
-    data_pos = np.zeros(n, np.int64)
-    data_size = np.zeros(n, np.int64)
-    compression = np.zeros(n, np.uint8)
-    t_min = np.zeros(n, np.int64)
-    t_max = np.zeros(n, np.int64)
-    layout: tuple[bytes, bytes, bytes] | None = None  # a record's first bytes, but for its conn and count
-    conn_at = count_at = lo = hi = 0
-    chunk_names = {"op", "compression", "size"}
-    for c, at in enumerate(chunk_pos):
-        what = f"the chunk at byte {at}"
-        (hlen,) = _U32.unpack(read(at, 4, 508))
-        hdr = read(at, 8 + hlen)
-        fields = _plain_fields(hdr, 4, 4 + hlen, chunk_names, what)
-        kind = fields["compression"].decode("latin-1")
-        if fields["op"] != bytes([_OP_CHUNK]) or kind not in _CHUNK_COMPRESSIONS:
-            raise _NotPlain(f"{what} is not a chunk, or compressed with {kind!r}")
-        unpacked = _plain_int(fields, "size", _U32, what)
-        (dsize,) = _U32.unpack_from(hdr, 4 + hlen)
-        if kind == "none" and unpacked != dsize:
-            raise _NotPlain(f"{what} is uncompressed, but its size says {unpacked} bytes and its data {dsize}")
-        p0, p1 = pair_start[c], pair_start[c + 1]
-        expected = dict(zip(pair_conn[p0:p1], pair_count[p0:p1]))
-        region = read(at + 8 + hlen + dsize, _INDEX_HEAD * (p1 - p0) + 12 * sum(pair_count[p0:p1]))
-        off = 0
-        rows = []
-        for _ in range(p1 - p0):
-            head = region[off:off + _INDEX_HEAD]
-            if layout is None:  # the first index data record: its layout is every other's
-                what = f"the index data record after {what}"
-                fields = _plain_fields(head, 4, _INDEX_HEAD - 4, {"op", "ver", "conn", "count"}, what)
-                if _U32.unpack_from(head)[0] != 47 or fields["op"] != bytes([_OP_INDEX]) or \
-                        _plain_int(fields, "ver", _U32, what) != 1 or len(fields["conn"]) != 4 or len(fields["count"]) != 4:
-                    raise _NotPlain(f"{what} is not laid out as ROS writes it")
-                conn_at = head.index(b"conn=") + 5
-                count_at = head.index(b"count=") + 6
-                lo, hi = sorted((conn_at, count_at))
-                layout = (head[:lo], head[lo + 4:hi], head[hi + 4:_INDEX_HEAD - 4])
-            if (head[:lo], head[lo + 4:hi], head[hi + 4:_INDEX_HEAD - 4]) != layout:
-                raise _NotPlain(f"an index data record after the chunk at byte {at} is laid out differently")
-            (conn,) = _U32.unpack_from(head, conn_at)
-            (count,) = _U32.unpack_from(head, count_at)
-            (dlen,) = _U32.unpack_from(head, _INDEX_HEAD - 4)
-            if expected.pop(conn, None) != count or dlen != 12 * count:
-                raise _NotPlain(f"an index data record after the chunk at byte {at} does not match its chunk info")
-            rows.append(np.frombuffer(region, dtype="<u4", count=3 * count, offset=off + _INDEX_HEAD))
-            off += _INDEX_HEAD + 12 * count
-        entries = (np.concatenate(rows) if len(rows) > 1 else rows[0]).reshape(-1, 3)
-        if int(entries[:, 2].max()) >= unpacked:
-            raise _NotPlain(f"the index of the chunk at byte {at} points past its data")
-        times = entries[:, 0].astype(np.int64) * 1_000_000_000 + entries[:, 1]
-        data_pos[c], data_size[c] = at + 8 + hlen, dsize
-        compression[c] = _CHUNK_COMPRESSIONS.index(kind)
-        t_min[c], t_max[c] = times.min(), times.max()
-    conn_all = np.frombuffer(pair_conn, dtype=np.uint32).copy()
-    count_all = np.frombuffer(pair_count, dtype=np.uint32).copy()
-    totals = dict.fromkeys(ids, 0)
-    for cid, cnt in zip(pair_conn, pair_count):
-        totals[cid] += cnt
-    return _Ros1Table(
-        connections=[c._replace(msgcount=totals[c.id], owner=None) for c in connections],
-        counts=totals,
-        start_time=min(starts),
-        end_time=max(ends) + 1,
-        data_pos=data_pos, data_size=data_size, compression=compression, t_min=t_min, t_max=t_max,
-        pair_start=np.frombuffer(pair_start, dtype=np.int64).copy(),
-        pair_conn=conn_all, pair_count=count_all, conn_at=conn_at, count_at=count_at,
-    )
-
-
-def _ros1_table(p: Path) -> _Ros1Table | None:
-    """The table of the ROS1 bag ``p`` (:func:`_scan_ros1`), or None when rosbags' own reader is to read
-    it. The last few are kept."""
-    try:
-        st = p.stat()
-        key = (str(p.resolve()), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
-    except OSError:
-        return None
-    table = _TABLES.pop(key, None)
-    if table is None:
-        try:
-            fd = os.open(p, os.O_RDONLY)
-        except OSError:
-            return None
-        try:
-            table = _scan_ros1(fd, st.st_size)
-        except Exception as exc:  # noqa: BLE001 - whatever is unusual (or damaged): rosbags' path decides
-            log.debug("%s: not read through a table of its chunks (%s)", p, exc)
-            return None
-        finally:
-            os.close(fd)
-        while len(_TABLES) >= _TABLES_KEEP:
-            del _TABLES[next(iter(_TABLES))]
-    _TABLES[key] = table
-    return table
-
-
-def _header_fields(buf: Any, start: int, end: int) -> dict[str, bytes]:
-    """A record header's fields, read as rosbags reads them (its errors: :class:`ReaderError`, and
-    UnicodeDecodeError for a name that is not UTF-8)."""
-    from rosbags.rosbag1 import ReaderError
-
-    head = bytes(buf[start:end])
-    out: dict[str, bytes] = {}
-    pos, length = 0, len(head)
-    while pos < length:
-        if pos + 4 > length:
-            raise ReaderError("Header field size could not be read.")
-        (size,) = _U32.unpack_from(head, pos)
-        pos += 4
-        if pos + size > length:
-            raise ReaderError("Declared field size is too large for header.")
-        name, sep, value = head[pos:pos + size].partition(b"=")
-        if not sep:
-            raise ReaderError("Header field could not be parsed.")
-        out[name.decode()] = value
-        pos += size
-    return out
-
-
-def _message_at(buf: Any, pos: int, end: int) -> tuple[int, int, int, int]:
-    """(connection, bag time, data start, data length) of the message record at ``pos`` in a chunk's data
-    (``buf`` up to ``end``), past any connection records before it; errors as rosbags raises them."""
-    from rosbags.rosbag1 import ReaderError
-
-    while True:
-        if pos + 4 > end:
-            raise ReaderError("Header could not be read from file.")
-        (hlen,) = _U32.unpack_from(buf, pos)
-        start = pos + 4
-        if start + hlen > end:
-            raise ReaderError("Header could not be read from file.")
-        fields = _header_fields(buf, start, start + hlen)
-        op = fields.get("op")
-        if op is None or len(op) != 1:
-            raise ReaderError("Could not read uint8 field 'op'.")
-        data = start + hlen + 4
-        if op[0] != _OP_CONNECTION:
-            break
-        if data > end:
-            raise ReaderError("Could not read uint32.")
-        pos = data + _U32.unpack_from(buf, start + hlen)[0]
-    if op[0] != _OP_MSG:
-        raise ReaderError("Expected to find message data.")
-    if data > end:
-        raise ReaderError("Could not read uint32.")
-    (dlen,) = _U32.unpack_from(buf, start + hlen)
-    if data + dlen > end:
-        raise ReaderError(f"Got only {max(end - data, 0)} of requested {dlen} bytes.")
-    conn, stamp = fields.get("conn"), fields.get("time")
-    if conn is None or len(conn) < 4:
-        raise ReaderError("Could not read uint32 field 'conn'.")
-    if stamp is None or len(stamp) != 8:
-        raise ReaderError("Could not read time field 'time'.")
-    sec, nsec = _TIME.unpack(stamp)
-    return _U32.unpack_from(conn)[0], sec * 1_000_000_000 + nsec, data, dlen
-
-
-class _Ros1Reader:
-    """rosbags' ROS1 ``Reader`` for a healthy bag, without its per-message index.
-
-    It stands in for rosbags' reader inside ``AnyReader`` (which asks it for its connections, opens and
-    closes it, and reads messages through it), with the same connections, counts, times and messages in
-    the same order. The bag is mapped into memory where it can be. Messages are read chunk by chunk in
-    time order: a chunk's index data records are read when the stream reaches it (the chunks whose time
-    spans overlap are merged), so a stream holds the entries of a chunk or two, whatever the length of
-    the bag; a compressed chunk is decompressed once, when it is reached, and dropped when its last
-    wanted message is read; mapped pages read past are handed back every ``_RELEASE_BYTES``.
-    """
-
-    def __init__(self, path: Path, table: _Ros1Table) -> None:
-        self.path = path
-        self.table = table
-        self.bio: Any = None
-        self.connections: list[Any] = []
-        self._map: Any = None
-        self._view: memoryview | None = None
-
-    # -- what AnyReader and rosbags' users ask of a reader -----------------------------------------------
-    def _check_open(self) -> None:
-        if not self.bio:
-            from rosbags.rosbag1 import ReaderError
-
-            raise ReaderError("Reader is not open.")
-
-    def open(self) -> None:
-        from rosbags.rosbag1 import ReaderError
-
-        if self.bio is not None:
-            raise ReaderError("Reader is already open.")
-        try:
-            self.bio = self.path.open("rb")
-        except PermissionError:
-            raise
-        except OSError as err:
-            raise ReaderError(f"Could not open file {str(self.path)!r}: {err.strerror}.") from err
-        try:
-            self._map = mmap.mmap(self.bio.fileno(), 0, access=mmap.ACCESS_READ)
-            self._view = memoryview(self._map)
-        except (OSError, ValueError):
-            self._map = self._view = None
-        self.connections = [c._replace(owner=self) for c in self.table.connections]
-
-    def close(self) -> None:
-        self._check_open()
-        bio, self.bio = self.bio, None
-        self.connections = []
-        self._map = self._view = None  # unmapped once no message read from it is in use
-        bio.close()
-
-    def __enter__(self) -> _Ros1Reader:
-        self.open()
-        return self
-
-    def __exit__(self, *exc: object) -> Literal[False]:
-        self.close()
-        return False
-
-    @property
-    def start_time(self) -> int:
-        self._check_open()
-        return self.table.start_time
-
-    @property
-    def end_time(self) -> int:
-        self._check_open()
-        return self.table.end_time
-
-    @property
-    def duration(self) -> int:
-        return max(self.end_time - self.start_time, 0)
-
-    @property
-    def message_count(self) -> int:
-        self._check_open()
-        return sum(self.table.counts.get(c.id, 0) for c in self.connections)
-
-    @property
-    def topics(self) -> dict[str, Any]:
-        from rosbags.interfaces import MessageDefinition, MessageDefinitionFormat, TopicInfo
-
-        self._check_open()
-        groups: dict[str, list[Any]] = {}
-        for conn in sorted(self.connections, key=lambda x: x.topic):
-            groups.setdefault(conn.topic, []).append(conn)
-        out = {}
-        for topic, conns in groups.items():
-            types, defs = {x.msgtype for x in conns}, {x.msgdef for x in conns}
-            out[topic] = TopicInfo(
-                types.pop() if len(types) == 1 else None,
-                defs.pop() if len(defs) == 1 else MessageDefinition(MessageDefinitionFormat.NONE, ""),
-                sum(self.table.counts.get(x.id, 0) for x in conns),
-                conns,
-            )
-        return out
-
-    def messages(self, connections: Sequence[Any] = (), start: int | None = None,
-                 stop: int | None = None) -> Iterator[tuple[Any, int, bytes]]:
-        """``(connection, bag time, bytes)`` as rosbags' reader yields them: in time order, the order of
-        ``connections`` among messages of the same time (all connections when empty)."""
-        self._check_open()
-        yield from self.records(connections or self.connections, start, stop, views=False)  # type: ignore[misc]
-
-    # -- semmap's own use ---------------------------------------------------------------------------------
-    def sparse(self, conns: Sequence[Any]) -> bool:
-        """Whether ``conns``' messages are worth reading record by record as views of the mapped file: an
-        uncompressed bag, mapped, whose chunks holding them are mostly other bytes (``_SPARSE_MIN_BYTES``)."""
-        t = self.table
-        if self._map is None or t.compression.any():
-            return False
-        ids = np.array(sorted({c.id for c in conns}), dtype=np.int64)
-        hit = np.isin(t.pair_conn, ids)
-        wanted = int(t.pair_count[hit].sum())
-        chunk_bytes = int(t.data_size[np.logical_or.reduceat(hit, t.pair_start[:-1])].sum())
-        return chunk_bytes >= _SPARSE_MIN_BYTES * wanted
-
-    def _read(self, pos: int, n: int) -> bytes:
-        from rosbags.rosbag1 import ReaderError
-
-        if self._map is not None:
-            data = self._map[pos:pos + n]
-        else:
-            data = os.pread(self.bio.fileno(), n, pos)
-        if len(data) != n:
-            raise ReaderError(f"Got only {len(data)} of requested {n} bytes.")
-        return data
-
-    def _entries(self, c: int, ranks: dict[int, list[int]], start: int | None) -> list[tuple[int, int, int, int, int]]:
-        """The wanted messages of chunk ``c`` as ``(time, rank, chunk, position in its index, offset)``,
-        sorted: rosbags' order (time, then the connection's place among those asked for, then chunk info
-        order, then index order)."""
-        from rosbags.rosbag1 import ReaderError
-
-        t = self.table
-        p0, p1 = int(t.pair_start[c]), int(t.pair_start[c + 1])
-        region = self._read(int(t.data_pos[c] + t.data_size[c]), t.index_bytes(c))
-        expected = dict(zip(t.pair_conn[p0:p1].tolist(), t.pair_count[p0:p1].tolist()))
-        items: list[tuple[int, int, int, int, int]] = []
-        off = 0
-        for _ in range(p1 - p0):
-            (conn,) = _U32.unpack_from(region, off + t.conn_at)
-            (count,) = _U32.unpack_from(region, off + t.count_at)
-            if expected.pop(conn, None) != count:
-                raise ReaderError(f"the index data of the chunk at byte {int(t.data_pos[c])} changed while it was read")
-            rs = ranks.get(conn)
-            if rs:
-                rows = np.frombuffer(region, dtype="<u4", count=3 * count, offset=off + _INDEX_HEAD).reshape(-1, 3)
-                times = (rows[:, 0].astype(np.int64) * 1_000_000_000 + rows[:, 1]).tolist()
-                offsets = rows[:, 2].tolist()
-                for r in rs:
-                    items.extend(zip(times, [r] * count, [c] * count, range(count), offsets))
-            off += _INDEX_HEAD + 12 * count
-        if start is not None:
-            items = [x for x in items if x[0] >= start]
-        items.sort()
-        return items
-
-    def _chunk(self, c: int, mapped: Any) -> tuple[Any, int, int]:
-        """(buffer, start, end) of chunk ``c``'s records: the mapped file where it is uncompressed, else its
-        bytes, decompressed as rosbags decompresses them."""
-        from rosbags.rosbag1.reader import decompressors
-
-        t = self.table
-        pos, size = int(t.data_pos[c]), int(t.data_size[c])
-        kind = _CHUNK_COMPRESSIONS[int(t.compression[c])]
-        if kind == "none" and mapped is not None:
-            return mapped, pos, pos + size
-        data = decompressors[kind](self._read(pos, size))
-        return data, 0, len(data)
-
-    def records(self, connections: Sequence[Any], start: int | None = None, stop: int | None = None,
-                views: bool = True) -> Iterator[tuple[Any, int, bytes | memoryview]]:
-        """The messages of ``connections`` in rosbags' order; each message's bytes a read-only view of the
-        mapped file where it is uncompressed and ``views`` is set, else a copy (as rosbags gives them)."""
-        t = self.table
-        mapped, view = self._map, self._view  # (kept while the stream lasts, even past close())
-        ranks: dict[int, list[int]] = {}
-        for i, conn in enumerate(connections):
-            ranks.setdefault(conn.id, []).append(i)
-        connmap = {x.id: x for x in self.connections}
-        hit = np.isin(t.pair_conn, np.array(sorted(ranks), dtype=np.int64))
-        cand = np.flatnonzero(np.logical_or.reduceat(hit, t.pair_start[:-1]))
-        if start is not None:
-            cand = cand[t.t_max[cand] >= start]
-        if stop is not None:
-            cand = cand[t.t_min[cand] < stop]
-        cand = cand[np.argsort(t.t_min[cand], kind="stable")]  # by earliest message, then chunk info order
-        firsts = t.t_min[cand]
-        heap: list[tuple[int, int, int, int, int]] = []
-        live: dict[int, list[Any]] = {}  # chunk -> [buffer, start, end, messages still to read]
-        released = 0  # mapped pages below this were handed back
-        k = 0
-        while True:
-            # every chunk that may hold a message as early as the next one is loaded before that is read
-            while k < len(cand) and (not heap or int(firsts[k]) <= heap[0][0]):
-                c = int(cand[k])
-                k += 1
-                items = self._entries(c, ranks, start)
-                if not items:
-                    continue
-                live[c] = [None, 0, 0, len(items)]  # its data: read when its first message is
-                if heap:
-                    for item in items:
-                        heapq.heappush(heap, item)
-                else:
-                    heap = items  # a sorted list is a heap
-            if not heap:
-                return
-            stamp, _, c, _, offset = heapq.heappop(heap)
-            if stop is not None and stamp >= stop:
-                return
-            slot = live[c]
-            if slot[0] is None:
-                slot[:3] = self._chunk(c, mapped)
-            buf, base, end = slot[0], slot[1], slot[2]
-            conn, when, data, dlen = _message_at(buf, base + offset, end)
-            if buf is mapped:
-                raw: bytes | memoryview = view[data:data + dlen] if views else buf[data:data + dlen]  # type: ignore[index]
-            else:
-                raw = buf[data:data + dlen]
-            connection = connmap[conn]
-            if when != stamp:
-                raise AssertionError  # as rosbags' reader asserts it (a bare assert)
-            slot[3] -= 1
-            if not slot[3]:
-                del live[c]
-                if mapped is not None and hasattr(mapped, "madvise"):
-                    # what no chunk still being read needs, less a trailing window: the message about to be
-                    # yielded, and those just before it (a consumer may still hold them), stay mapped
-                    floor = min((int(t.data_pos[x]) for x in live), default=int(t.data_pos[c] + t.data_size[c]))
-                    floor = min(floor, data) if buf is mapped else floor
-                    floor -= _RELEASE_BYTES // 4
-                    floor -= floor % mmap.PAGESIZE
-                    if floor - released > _RELEASE_BYTES:
-                        mapped.madvise(mmap.MADV_DONTNEED, released, floor - released)
-                        released = floor
-            yield connection, stamp, raw
-
-
 def _describe(exc: BaseException) -> str:
     """What an exception from a bag reading library says is wrong with the bag, in words (one line)."""
     text = " ".join(str(exc).split())
@@ -1533,17 +915,17 @@ def _open_rebuilt(p: Path, why: str, trust_index: bool = True) -> Any:
 def _open_reader(p: Path) -> Any:
     """rosbags' ``AnyReader`` on the bag ``p``, opened; :class:`BagError` when it cannot be read.
 
-    A ROS1 bag whose index is as ROS writes it is read through :class:`_Ros1Reader` (no per-message
-    index); any other goes through rosbags' own reader, and the repairs around it.
+    A ROS1 bag whose index is as ROS writes it is read through :class:`~semmap.io.fastbag.Ros1Reader` (no
+    per-message index); any other goes through rosbags' own reader, and the repairs around it.
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    table = _ros1_table(p) if _is_ros1(p) else None
+    table = fastbag.ros1_table(p) if _is_ros1(p) else None
     try:
         reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         if table is not None:
-            reader.readers = [_Ros1Reader(p, table)]
+            reader.readers = [fastbag.Ros1Reader(p, table)]
         reader.open()
     except Exception as exc:  # noqa: BLE001 - rosbags lets AssertionError, struct.error... escape
         if not _is_ros1(p):
@@ -1759,217 +1141,152 @@ def message_count(path: str | Path, topic: str, reader: Any = None) -> int:
         return message_count(path, topic, opened)
 
 
+class OpenBag:
+    """A bag opened once (:func:`read_bag`): its topics and their types, message counts, time span,
+    and streams of its messages, each read from the same opened reader (for a ROS1 bag, one table
+    of its chunks, or one index rosbags parsed)."""
+
+    def __init__(self, path: str | Path, stack: contextlib.ExitStack) -> None:
+        self._given = path
+        self._stack = stack
+        self._path: Path | None = None
+        self._opened: Any = None
+        self._closed = False
+        self._types: dict[str, str] | None = None
+
+    @property
+    def path(self) -> Path:
+        """The bag file or ROS2 bag folder."""
+        if self._path is None:
+            self._path = resolve_bag_path(self._given)
+        return self._path
+
+    @property
+    def _reader(self) -> Any:
+        if self._opened is None:
+            if self._closed:
+                raise BagError(f"{self.path}: the bag was closed")
+            self._opened = self._stack.enter_context(open_bag(self.path))
+        return self._opened
+
+    def close(self) -> None:
+        """Close the bag now (else when :func:`read_bag`'s block ends)."""
+        self._closed = True
+        self._opened = None
+        self._stack.close()
+
+    @property
+    def types(self) -> dict[str, str]:
+        """Topic -> message type (``sensor_msgs/msg/LaserScan`` style)."""
+        if self._types is None:
+            self._types = {}
+            for conn in self._reader.connections:
+                self._types.setdefault(conn.topic, conn.msgtype)
+        return self._types
+
+    @property
+    def start_ns(self) -> int:
+        """The bag time of its first message (as the storage's index gives it)."""
+        return int(self._reader.start_time)
+
+    @property
+    def end_ns(self) -> int:
+        """The bag time just after its last message (as the storage's index gives it)."""
+        return int(self._reader.end_time)
+
+    def count(self, topic: str) -> int:
+        """Messages on ``topic`` as the bag's index counts them (0 if the storage does not say)."""
+        return message_count(self.path, topic, self._reader)
+
+    def messages(self, topics: Sequence[str], stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, bag time, message)`` of ``topics`` in bag-time order (:func:`iter_messages`); the
+        messages are rosbags' objects, for :mod:`semmap.io` (elsewhere, :meth:`records`)."""
+        return iter_messages(self.path, topics, stats, self._reader)
+
+    def first(self, topic: str) -> Any:
+        """The first message on ``topic`` (rosbags' object); :class:`BagError` when there is none."""
+        for _, _, msg in self.messages([topic]):
+            return msg
+        raise BagError(f"{self.path}: topic {topic} has no messages")
+
+    def records(self, topics: Sequence[str], stats: ReadStats | None = None, start_ns: int | None = None,
+                stop_ns: int | None = None, skip: Callable[[str, SemmapError], None] | None = None,
+                ) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, bag time, record)`` of ``topics`` in bag-time order, each message as the semmap record
+        for its type (:func:`~semmap.io.messages.record_from_msg`), from bag time ``start_ns`` (messages
+        before it are not decoded) to ``stop_ns`` (both included). ``skip``: a message that cannot be
+        decoded is handed to it (topic, error) and left out; without it, the error is raised."""
+        from .messages import record_from_msg
+
+        for topic, t_ns, msg in self.messages(topics, stats):
+            if start_ns is not None and t_ns < start_ns:
+                continue
+            if stop_ns is not None and t_ns > stop_ns:
+                return
+            try:
+                record = record_from_msg(self.types[topic], msg, topic)
+            except SemmapError as exc:
+                if skip is None:
+                    raise
+                skip(topic, exc)
+                continue
+            yield topic, t_ns, record
+
+    def nearest(self, topic: str, t_ns: int) -> tuple[int, Any] | None:
+        """``(bag time, record)`` of the message on ``topic`` nearest bag time ``t_ns`` (only that one is
+        decoded); None when the topic has no messages."""
+        from .messages import record_from_msg
+
+        best: tuple[int, Any] | None = None
+        for _, t_msg, msg in self.messages([topic]):
+            if best is None or abs(t_msg - t_ns) < abs(best[0] - t_ns):
+                best = (t_msg, msg)
+            elif t_msg > t_ns:
+                break
+        return None if best is None else (best[0], record_from_msg(self.types[topic], best[1], topic))
+
+    def nearest_stamp(self, topic: str, stamp_ns: int, within_ns: int, until_ns: int) -> Any:
+        """The record of the message on ``topic`` whose header stamp is nearest ``stamp_ns`` and within
+        ``within_ns`` of it (only that one is decoded), read up to bag time ``until_ns``; None if none is."""
+        from .messages import record_from_msg
+        from .messages import stamp_ns as header_stamp
+
+        best, best_dt = None, within_ns + 1
+        for _, t_msg, msg in self.messages([topic]):
+            dt = abs(header_stamp(msg.header) - stamp_ns)
+            if dt < best_dt:
+                best, best_dt = msg, dt
+            if t_msg > until_ns:
+                break
+        return None if best is None else record_from_msg(self.types[topic], best, topic)
+
+
+@contextmanager
+def read_bag(path: str | Path, lazy: bool = False) -> Iterator[OpenBag]:
+    """The bag at ``path`` (or in the tour folder ``path``) opened once, as an :class:`OpenBag`, and
+    closed when the block ends; errors become :class:`BagError` naming the file. ``lazy``: the bag is
+    found and opened when first used (its errors come when the work that needs it starts)."""
+    with contextlib.ExitStack() as stack:
+        bag = OpenBag(path, stack)
+        if not lazy:
+            bag.types  # noqa: B018 - opens it
+        yield bag
+
+
+def iter_records(path: str | Path, topics: Sequence[str],
+                 stats: ReadStats | None = None) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, bag time, record)`` of ``topics`` of the bag at ``path`` (:meth:`OpenBag.records`), opened
+    for as long as the stream lasts."""
+    with read_bag(path) as bag:
+        yield from bag.records(topics, stats)
+
+
 @dataclass
 class ReadStats:
     """Messages read and skipped per topic while streaming a bag."""
 
     read: dict[str, int] = field(default_factory=dict)
     skipped: dict[str, int] = field(default_factory=dict)
-
-
-#: read record by record when whole chunks would cost more than this per wanted message (about where
-#: copying the chunk costs what seeking to each message does)
-_SPARSE_MIN_BYTES = 64 * 1024
-#: mapped bag pages read past are handed back in steps of this many bytes
-_RELEASE_BYTES = 16 * 1024 * 1024
-
-
-class _Bytes:
-    """Reads a bag file's records: from the file mapped into memory where it can be (a message's bytes
-    are then a read-only view of the file, not a copy), else through its file object. Mapped pages
-    read past are handed back every ``_RELEASE_BYTES``, so the process does not hold the whole bag
-    resident; a message still in use reads them again from the page cache."""
-
-    def __init__(self, bio: Any) -> None:
-        try:
-            self.mapped: Any = mmap.mmap(bio.fileno(), 0, access=mmap.ACCESS_READ)
-        except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
-            self.mapped = None
-        self.src = bio if self.mapped is None else self.mapped  # seek, tell and read work on both
-        self._view = None if self.mapped is None else memoryview(self.mapped)
-        self._released = 0  # mapped pages below this were handed back
-
-    def take(self, size: int, error: type[Exception]) -> bytes | memoryview:
-        """The next ``size`` bytes at the current position (the position moves past them)."""
-        if self._view is None:
-            data = self.src.read(size)
-            if len(data) != size:
-                raise error(f"Got only {len(data)} of requested {size} bytes.")
-            return data
-        start = self.src.tell()
-        if start + size > len(self._view):
-            raise error(f"Got only {len(self._view) - start} of requested {size} bytes.")
-        self.src.seek(size, os.SEEK_CUR)
-        if start - self._released > _RELEASE_BYTES and hasattr(self.mapped, "madvise"):
-            end = start - _RELEASE_BYTES // 4  # the messages just before this one may still be in use
-            end -= end % mmap.PAGESIZE
-            if end > self._released:
-                self.mapped.madvise(mmap.MADV_DONTNEED, self._released, end - self._released)
-                self._released = end
-        return self._view[start:start + size]
-
-
-def _ros1_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes | memoryview]] | None:
-    """The messages of ``conns`` in an uncompressed ROS1 bag, each read on its own; None for other bags.
-
-    rosbags reads every chunk that holds a wanted message whole, so reading a scan stored beside
-    camera images costs the images' bytes as well (a 1.5 MB chunk for a 5 kB scan, and the
-    LiDAR, odometry and camera topics are each read by another process). In an uncompressed
-    chunk, the bag's index gives each message's offset, so only its own record need be read.
-    The bag is mapped into memory where it can be: a message's bytes are then a read-only view
-    of the file (a camera frame is not copied on its way to the frame's consumer), and pages read
-    past are handed back every few MB, so the process does not hold the whole bag.
-
-    A healthy bag is read by :class:`_Ros1Reader` (no per-message index), whose ``records`` this is;
-    any other by rosbags' own reader, whose parsed index this reads. None (the reader's own path,
-    which copies each message's bytes) for compressed chunks (bz2, lz4), for chunks that hold mostly
-    wanted bytes (a LiDAR-only bag), and with a rosbags that lays out its parsed index and record
-    helpers, which this reads, differently.
-    """
-    own = getattr(reader, "readers", None)
-    if own and len(own) == 1 and isinstance(own[0], _Ros1Reader):  # a healthy bag: no per-message index
-        return own[0].records(conns) if own[0].sparse(conns) else None
-    try:
-        from rosbags.rosbag1 import reader as r1
-
-        if getattr(reader, "is2", True) or len(reader.readers) != 1:
-            return None
-        bag = reader.readers[0]
-        plain = r1.decompressors[r1.Compression.NONE.value]
-        chunks = bag.chunks
-        if not all(c.decompressor is plain for c in chunks.values()):
-            return None
-        indexes = [bag.indexes[c.id] for c in conns]
-        wanted = sum(len(i) for i in indexes)
-        chunk_bytes = sum(chunks[pos].datasize for pos in {e.chunk_pos for i in indexes for e in i})
-        if chunk_bytes < _SPARSE_MIN_BYTES * wanted:  # the chunks are mostly what is wanted: read them whole
-            return None
-        connmap = {c.id: c for c in bag.connections}
-        bio = bag.bio
-        read_header, read_uint32 = r1.Header.read, r1.read_uint32
-        connection_op, message_op = int(r1.RecordType.CONNECTION), int(r1.RecordType.MSGDATA)
-    except (ImportError, AttributeError, KeyError, TypeError):
-        return None
-
-    def records() -> Iterator[tuple[Any, int, bytes | memoryview]]:
-        data = _Bytes(bio)
-        src = data.src
-        for entry in heapq.merge(*indexes):  # time order, as rosbags merges them
-            src.seek(chunks[entry.chunk_pos].datapos + entry.offset)
-            while True:
-                header = read_header(src)
-                op = header.get_uint8("op")
-                if op != connection_op:
-                    break
-                src.seek(read_uint32(src), os.SEEK_CUR)  # a connection record before the message
-            if op != message_op:
-                raise r1.ReaderError(f"expected message data at chunk {entry.chunk_pos} offset {entry.offset}")
-            yield connmap[header.get_uint32("conn")], entry.time, data.take(read_uint32(src), r1.ReaderError)
-
-    return records()
-
-
-def _mcap_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, bytes | memoryview]] | None:
-    """The messages of ``conns`` in a ROS2 MCAP bag with uncompressed chunks, each read on its own;
-    None for other bags.
-
-    As for ROS1 (:func:`_ros1_records`): rosbags reads every chunk that holds a wanted message
-    whole, but each chunk's message index gives the offset of every message of a channel in it,
-    so only the wanted records are read (views of the mapped file). The order is rosbags': by log
-    time, then by chunk, then as stored. None (rosbags' own path) for compressed chunks or messages,
-    several storage files, files without chunk and message indexes, chunks that hold mostly wanted
-    bytes, and a rosbags that lays out its parsed index differently.
-    """
-    try:
-        from rosbags.rosbag2 import storage_mcap as m2
-
-        if not getattr(reader, "is2", False) or len(reader.readers) != 1:
-            return None
-        bag = reader.readers[0]
-        storage = bag.storage
-        storages = getattr(storage, "storages", [storage])
-        if len(storages) != 1 or not isinstance(storages[0], m2.McapReader) or \
-                getattr(bag, "compression_mode", None) == "message":
-            return None
-        mcap = storages[0]
-        # the bag's connections and the file's channels, matched as rosbags matches them
-        wanted: dict[int, Any] = {}
-        for x in mcap.connections:
-            for y in conns:
-                if y.topic == x.topic and y.msgtype == x.msgtype and (not x.digest or not y.digest
-                                                                        or y.digest == x.digest):
-                    wanted[x.id] = y
-                    break
-        chunks = [c for c in mcap.chunks if any(c.channel_count.get(cid, 0) for cid in wanted)]
-        if not chunks or any(c.compression or any(c.channel_count.get(cid, 0) and cid not in c.message_index_offsets
-                                                  for cid in wanted) for c in chunks):
-            return None
-        n_wanted = sum(c.channel_count.get(cid, 0) for c in chunks for cid in wanted)
-        if sum(c.uncompressed_size for c in chunks) < _SPARSE_MIN_BYTES * n_wanted:
-            return None
-        bio = mcap.bio
-        error = m2.ReaderError
-    except (ImportError, AttributeError, KeyError, TypeError):
-        return None
-
-    def chunk_entries(data: _Bytes, chunk: Any) -> Iterator[tuple[int, int, int, int]]:
-        """(log time, chunk offset, record offset, channel) of the chunk's wanted messages, in order."""
-        yield chunk.message_start_time, chunk.chunk_start_offset, -1, -1  # the index is read when needed
-        entries: list[tuple[int, int, int, int]] = []
-        for cid in wanted:
-            if not chunk.channel_count.get(cid, 0):
-                continue
-            data.src.seek(chunk.message_index_offsets[cid])
-            head = data.src.read(15)  # op, record length, channel id, byte length of the entries
-            if len(head) != 15 or head[0] != 0x07:
-                raise error(f"no message index at offset {chunk.message_index_offsets[cid]}")
-            n = int.from_bytes(head[11:15], "little")
-            pairs = np.frombuffer(bytes(data.take(n, error)), dtype="<u8").reshape(-1, 2)
-            entries.extend((int(t), chunk.chunk_start_offset, int(off), cid) for t, off in pairs.tolist())
-        entries.sort()
-        yield from entries
-
-    def merged(data: _Bytes) -> Iterator[tuple[int, int, int, int]]:
-        """What ``heapq.merge`` of every chunk's entries gives (ties: chunk order), but a chunk's entries
-        are made only when the merge reaches its first message, so a stream holds those of a chunk or two
-        rather than a generator per chunk of the bag."""
-        order = np.lexsort((np.arange(len(chunks)), np.array([c.chunk_start_offset for c in chunks], np.int64),
-                            np.array([c.message_start_time for c in chunks], np.int64)))
-        heap: list[tuple[tuple[int, int, int, int], int, Iterator[tuple[int, int, int, int]]]] = []
-        k = 0
-        while True:
-            while k < len(order):  # a chunk whose first entry would come before the next one joins
-                i = int(order[k])
-                first = (chunks[i].message_start_time, chunks[i].chunk_start_offset, -1, -1)
-                if heap and (first, i) > heap[0][:2]:
-                    break
-                entries = chunk_entries(data, chunks[i])
-                heapq.heappush(heap, (next(entries), i, entries))
-                k += 1
-            if not heap:
-                return
-            value, i, entries = heap[0]
-            yield value
-            following = next(entries, None)
-            if following is None:
-                heapq.heappop(heap)
-            else:
-                heapq.heapreplace(heap, (following, i, entries))
-
-    def records() -> Iterator[tuple[Any, int, bytes | memoryview]]:
-        data = _Bytes(bio)
-        for log_time, chunk_at, offset, cid in merged(data):
-            if offset < 0:
-                continue
-            data.src.seek(chunk_at + 9 + 40 + offset)  # op, length, 4 numbers, "" (no compression), size
-            head = data.src.read(9)  # op, record length
-            if len(head) != 9 or head[0] != 0x05:
-                raise error(f"no message record at chunk {chunk_at} offset {offset}")
-            size = int.from_bytes(head[1:9], "little")
-            data.src.seek(22, os.SEEK_CUR)  # channel, sequence, log and publish time
-            yield wanted[cid], log_time, data.take(size - 22, error)
-
-    return records()
 
 
 def iter_messages(path: str | Path, topics: Sequence[str], stats: ReadStats | None = None,
@@ -2008,8 +1325,10 @@ def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> It
         return
     last: int | None = None  # bag time of the last record read, and how many records were read at that time
     at_last = 0
+    fast = False  # read by semmap's own reader (:mod:`semmap.io.fastbag`)
     try:
-        records = _ros1_records(reader, conns) or _mcap_records(reader, conns)
+        records = fastbag.ros1_records(reader, conns) or fastbag.mcap_records(reader, conns)
+        fast = records is not None or fastbag.reads(reader)
         for conn, t_ns, raw in records if records is not None else reader.messages(connections=conns):
             last, at_last = (t_ns, at_last + 1) if t_ns == last else (t_ns, 1)
             msg = _deserialize(reader, p, conn, raw, stats)
@@ -2019,11 +1338,14 @@ def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> It
     except SemmapError:
         raise
     except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
+        if fast and not isinstance(exc, fastbag.not_understood()):
+            raise  # a bug in semmap's own reader, not a bag it cannot read: never hidden behind the fallback
         failure = exc
     if not _is_ros1(p) or _rebuilt_from_chunks(reader):
         raise _unreadable(p, failure)
     # a ROS1 bag whose index does not lead to its messages: go on through an index rebuilt from its chunks
-    log.debug("%s: reading through its index failed (%r); rebuilding it from the chunks", p, failure)
+    (log.info if fast else log.debug)("%s: reading through its index failed (%r); rebuilding it from the chunks "
+                                      "and reading it through rosbags' reader", p, failure)
     rebuilt = _open_rebuilt(p, f"reading through its own index failed: {_describe(failure)}", trust_index=False)
     try:
         conns = [c for c in rebuilt.connections if c.topic in wanted]

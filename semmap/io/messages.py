@@ -17,12 +17,15 @@ from numpy.typing import NDArray
 from ..errors import BagError
 from ..geometry import quaternion_to_yaw, se3_from_translation_quaternion
 from ..records import CameraIntrinsics, Image, Scan
+from .topics import COMPRESSED_T, IMAGE_T, INFO_T, ODOM_T, SCAN_T, TF_T
 
 __all__ = [
     "stamp_ns",
     "scan_from_msg",
     "image_from_msg",
     "compressed_image_from_msg",
+    "decode_image",
+    "record_from_msg",
     "odometry_from_msg",
     "transforms_from_msg",
     "camera_info_from_msg",
@@ -162,6 +165,34 @@ def compressed_image_from_msg(msg: Any, topic: str = "") -> Image:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
         enc = "rgb8"
     return Image(stamp_ns(msg.header), str(msg.header.frame_id).lstrip("/"), img, enc)
+
+
+def decode_image(msg: Any, msgtype: str, topic: str = "") -> Image:
+    """The one image decoder: a ``sensor_msgs/Image`` (:func:`image_from_msg`) or
+    ``sensor_msgs/CompressedImage`` (:func:`compressed_image_from_msg`) as an :class:`Image`
+    (rgb8 for colour, mono8/mono16 (and 32FC1) for one channel); errors are :class:`BagError`."""
+    if msgtype == COMPRESSED_T:
+        return compressed_image_from_msg(msg, topic)
+    if msgtype == IMAGE_T:
+        return image_from_msg(msg, topic)
+    raise BagError(f"{topic}: {msgtype} is not an image type")
+
+
+def record_from_msg(msgtype: str, msg: Any, topic: str = "") -> Any:
+    """A message of one of the types semmap reads as the semmap record (or plain data) for it:
+    :class:`Scan`, :class:`Image`, :func:`odometry_from_msg`'s tuple, :func:`transforms_from_msg`'s
+    list, :class:`CameraIntrinsics`."""
+    if msgtype == SCAN_T:
+        return scan_from_msg(msg, topic)
+    if msgtype in (IMAGE_T, COMPRESSED_T):
+        return decode_image(msg, msgtype, topic)
+    if msgtype == ODOM_T:
+        return odometry_from_msg(msg, topic)
+    if msgtype == TF_T:
+        return transforms_from_msg(msg, topic)
+    if msgtype == INFO_T:
+        return camera_info_from_msg(msg)
+    raise BagError(f"{topic}: semmap does not read {msgtype} messages")
 
 
 def _sane(values: list[float]) -> bool:

@@ -20,34 +20,15 @@ from ..config import BuildConfig, load_model, load_yaml
 from ..errors import BagError, ConfigError
 from ..geometry import se3_from_xyz_rpy
 from ..records import Calibration
-from .bag import iter_messages, resolve_bag_path, topic_types
+from .bag import OpenBag, read_bag, resolve_bag_path
 from .calibration import read_calibration
 from .messages import camera_info_from_msg, odometry_from_msg, scan_from_msg, transforms_from_msg
 from .tf import TfTree
+from .topics import Topics, pick_topics
 
-__all__ = ["Tour", "open_tour", "load_build_config", "resolve_topics"]
+__all__ = ["Tour", "Topics", "open_tour", "load_build_config", "resolve_topics", "read_tour_manifest"]
 
 log = logging.getLogger(__name__)
-
-SCAN_T = "sensor_msgs/msg/LaserScan"
-IMAGE_T = "sensor_msgs/msg/Image"
-COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
-INFO_T = "sensor_msgs/msg/CameraInfo"
-ODOM_T = "nav_msgs/msg/Odometry"
-TF_T = "tf2_msgs/msg/TFMessage"
-
-_LABEL_HINTS = ("label", "seg", "mask", "semantic", "class")
-_TRUTH_HINTS = ("ground_truth", "groundtruth", "gt", "truth", "mocap", "vicon")
-
-
-@dataclass(frozen=True)
-class Topics:
-    scan: str
-    frames: str | None  # the image stream the segmenter consumes (labels or RGB)
-    frames_kind: str  # "labels" | "rgb" | "none"
-    odometry: str | None
-    tf_static: str | None
-    camera_info: str | None
 
 
 @dataclass(frozen=True)
@@ -100,64 +81,18 @@ def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None 
     return cfg, base
 
 
-def _pick(kind: str, wanted: str | None, candidates: list[str], types: dict[str, str], bag: Path,
-          required: bool) -> str | None:
-    if wanted is not None:
-        if wanted.lower() == "none":
-            return None
-        if wanted not in types:
-            raise BagError(f"{bag}: topic {wanted} ({kind}) is not in the bag "
-                           f"(topics: {', '.join(sorted(types)) or 'none'})")
-        return wanted
-    if len(candidates) == 1:
-        return candidates[0]
-    if not candidates:
-        if required:
-            raise BagError(f"{bag}: no {kind} topic in the bag")
-        return None
-    raise BagError(f"{bag}: several {kind} topics ({', '.join(sorted(candidates))}); "
-                   f"choose one with topics.{kind} in the config")
-
-
 def resolve_topics(cfg: BuildConfig, types: dict[str, str], bag: Path, manifest: dict[str, Any],
                    consumes: str) -> Topics:
-    """Resolve topic names from the config, the tour manifest, then the bag's message types."""
-    t = cfg.topics
-    known = manifest.get("topics", {}) if manifest else {}
-
-    def want(name: str, key: str | None = None) -> str | None:
-        v = getattr(t, name)
-        if v is None and key and key in known and known[key] in types:
-            return str(known[key])
-        return v
-
-    scans = [k for k, v in types.items() if v == SCAN_T]
-    scan = _pick("scan", want("scan", "scan"), scans, types, bag, required=True)
-    assert scan is not None
-    odoms = [k for k, v in types.items() if v == ODOM_T and not any(h in k.lower() for h in _TRUTH_HINTS)]
-    odometry = _pick("odometry", want("odometry", "odometry"), odoms, types, bag, required=False)
-    if odometry is not None and types[odometry] != ODOM_T:
-        raise BagError(f"{bag}: topic {odometry} is {types[odometry]}, not nav_msgs/Odometry")
-    images = [k for k, v in types.items() if v in (IMAGE_T, COMPRESSED_T)]
-    label_like = [k for k in images if any(h in k.lower() for h in _LABEL_HINTS)]
-    rgb_like = [k for k in images if k not in label_like]
-    if consumes == "labels":
-        frames = _pick("labels", want("labels", "labels"), label_like, types, bag, required=False)
-        kind = "labels"
-    else:
-        frames = _pick("image", want("image", "image"), rgb_like, types, bag, required=False)
-        kind = "rgb"
-    infos = [k for k, v in types.items() if v == INFO_T]
-    camera_info = _pick("camera_info", want("camera_info", "camera_info"), infos, types, bag, required=False) \
-        if infos or t.camera_info else None
-    tf_static = t.tf_static if t.tf_static in types else None
-    return Topics(scan, frames, kind if frames else "none", odometry, tf_static, camera_info)
+    """Resolve topic names from the config, the tour manifest, then the bag's message types
+    (:func:`~semmap.io.topics.pick_topics`, as ``segment`` and ``calibrate check`` pick them)."""
+    return pick_topics(types, cfg.topics, bag, consumes, manifest)
 
 
-def _check_camera_info(bag: Path, topic: str, calib: Calibration, calib_path: Path) -> None:
+def _check_camera_info(src: OpenBag, topic: str, calib: Calibration, calib_path: Path) -> None:
     """Warn when the bag's CameraInfo disagrees with the calibration file (a calibration of another camera)."""
+    bag = src.path
     try:
-        info = camera_info_from_msg(_first(bag, topic))
+        info = camera_info_from_msg(src.first(topic))
     except (BagError, ValueError):
         return
     mine = calib.intrinsics
@@ -169,15 +104,9 @@ def _check_camera_info(bag: Path, topic: str, calib: Calibration, calib_path: Pa
                     bag, topic, calib_path, info.fx, mine.fx)
 
 
-def _first(bag: Path, topic: str) -> Any:
-    for _, _, msg in iter_messages(bag, [topic]):
-        return msg
-    raise BagError(f"{bag}: topic {topic} has no messages")
-
-
-def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibration: str | Path | None = None,
-              consumes: str = "labels") -> Tour:
-    """Inspect a tour: topics, frames, ``T_base_lidar`` and the calibration."""
+def read_tour_manifest(tour: str | Path) -> tuple[Path, Path | None, dict[str, Any]]:
+    """The bag of a tour (a bag, or a folder holding one), the semmap tour folder it sits in (None if
+    none) and that folder's ``tour.yaml`` (empty if none)."""
     bag = resolve_bag_path(tour)
     p = Path(tour)
     folder = p if p.is_dir() and (p / "tour.yaml").is_file() else (
@@ -186,16 +115,36 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
     if folder is not None:
         m = load_yaml(folder / "tour.yaml")
         manifest = m if isinstance(m, dict) else {}
-    types = topic_types(bag)
+    return bag, folder, manifest
+
+
+def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibration: str | Path | None = None,
+              consumes: str = "labels", source: OpenBag | None = None) -> Tour:
+    """Inspect a tour: topics, frames, ``T_base_lidar`` and the calibration.
+
+    ``source``: the tour's bag already opened with :func:`~semmap.io.bag.read_bag` (a build opens it
+    once, and streams it from the same reader); else it is opened (once) and closed here.
+    """
+    bag, folder, manifest = read_tour_manifest(tour)
+    if source is None:
+        with read_bag(bag) as opened:
+            return _open_tour(opened, folder, manifest, config, config_dir, calibration, consumes)
+    return _open_tour(source, folder, manifest, config, config_dir, calibration, consumes)
+
+
+def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], config: BuildConfig, config_dir: Path,
+               calibration: str | Path | None, consumes: str) -> Tour:
+    bag = src.path
+    types = dict(src.types)
     topics = resolve_topics(config, types, bag, manifest, consumes)
 
-    scan0 = scan_from_msg(_first(bag, topics.scan), topics.scan)
+    scan0 = scan_from_msg(src.first(topics.scan), topics.scan)
     lidar_frame = config.frames.lidar or scan0.frame_id
     if not lidar_frame:
         raise BagError(f"{bag}: scans on {topics.scan} have an empty frame_id; set frames.lidar")
     base_frame = config.frames.base
     if base_frame is None and topics.odometry:
-        base_frame = odometry_from_msg(_first(bag, topics.odometry), topics.odometry)[2]
+        base_frame = odometry_from_msg(src.first(topics.odometry), topics.odometry)[2]
     base_frame = base_frame or "base_link"
 
     tree: TfTree | None = None
@@ -207,7 +156,7 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
             tree = TfTree()
             for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
                 n = 0
-                for _, _, msg in iter_messages(bag, [tf_topic]):
+                for _, _, msg in src.messages([tf_topic]):
                     for _, parent, child, mat in transforms_from_msg(msg, tf_topic):
                         if tf_topic == topics.tf_static or child not in tree:
                             tree.add(parent, child, mat)
@@ -252,25 +201,26 @@ def open_tour(tour: str | Path, config: BuildConfig, config_dir: Path, calibrati
             calib = read_calibration(calib_path)
             calib_source = str(calib_path)
             if topics.camera_info is not None:
-                _check_camera_info(bag, topics.camera_info, calib, calib_path)
+                _check_camera_info(src, topics.camera_info, calib, calib_path)
             if calib.lidar_frame and calib.lidar_frame != lidar_frame:
                 log.warning("%s: calibration is for LiDAR frame %r, scans are in %r", calib_path,
                             calib.lidar_frame, lidar_frame)
         else:
-            calib, calib_source = _calibration_from_bag(bag, topics, lidar_frame, tf_tree)
+            calib, calib_source = _calibration_from_bag(src, topics, lidar_frame, tf_tree)
     return Tour(bag, folder, manifest, config, topics, types, lidar_frame, base_frame, t_base_lidar, calib, calib_path,
                 t_source, calib_source)
 
 
-def _calibration_from_bag(bag: Path, topics: Topics, lidar_frame: str,
+def _calibration_from_bag(src: OpenBag, topics: Topics, lidar_frame: str,
                           tf_tree: Any) -> tuple[Calibration, str]:
     """The calibration a bag carries: intrinsics from ``camera_info``, ``T_cam_lidar`` from the
     transform chain between the LiDAR frame and the camera_info's frame."""
+    bag = src.path
     hint = "pass --calibration FILE or set 'calibration:' in the config"
     if topics.camera_info is None:
         raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration file and no "
                           f"sensor_msgs/CameraInfo topic; {hint}")
-    msg = _first(bag, topics.camera_info)
+    msg = src.first(topics.camera_info)
     try:
         intr = camera_info_from_msg(msg)
     except (ValueError, TypeError) as exc:

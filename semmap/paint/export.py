@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from ..classes import load_class_table
 from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError
+from ..io.bag import OpenBag, read_bag
 from ..records import Mobility, PaintedScan, Scan, Segmentation
 from ..segment.frames import InProcessFrames
 from .painter import CameraView, Painter
@@ -88,7 +89,14 @@ def iter_painted(
     (``paint.occlusion``); the filtered painting uses them even where the config switches the
     filter off.
     """
-    tinfo, cfg = open_build_tour(tour, config, calibration, overrides)
+    with read_bag(tour, lazy=True) as bag:  # opened once: the tour, counting and streaming
+        yield from _painted_pairs(bag, tour, config, calibration, overrides, progress)
+
+
+def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildConfig | None,
+                   calibration: str | Path | None, overrides: dict[str, Any] | None,
+                   progress: ProgressFn | None) -> Iterator[PaintedPair]:
+    tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
     if tinfo.topics.frames is None:
         raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
                        f"or topics.labels")
@@ -99,10 +107,9 @@ def iter_painted(
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range)
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
                           cfg.grid.no_return_range)
-    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, tinfo.types.get(tinfo.topics.frames, ""),
-                             cfg.segmentation)
+    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, cfg.segmentation)
     try:
-        for item in ScanStream(tinfo, cfg.sync, frames, progress):
+        for item in ScanStream(tinfo, cfg.sync, frames, progress, bag=bag):
             raw = raw_painter.paint(item.scan, item.odometry, item.segmentation)
             filtered = painter.paint(item.scan, item.odometry, item.segmentation)
             yield PaintedPair(item.scan, raw.painted, filtered.painted, filtered.view, item.segmentation)

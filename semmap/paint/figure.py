@@ -19,6 +19,7 @@ whole job for one tour.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from collections.abc import Callable
@@ -113,37 +114,29 @@ def camera_image(tour: str | Path, stamp_ns: int, config: str | Path | BuildConf
     None when the tour has no RGB topic (only label images, say) or no image near the stamp.
     Grey images come back as three equal channels.
     """
-    from ..io.bag import iter_messages
-    from ..io.messages import compressed_image_from_msg, image_from_msg
-    from ..io.messages import stamp_ns as header_stamp
-    from ..io.tour import COMPRESSED_T, load_build_config, open_tour
+    from ..io.bag import read_bag
+    from ..io.tour import load_build_config, open_tour
 
-    try:
-        if isinstance(config, BuildConfig):
-            cfg, cfg_dir = config, Path.cwd()
-        else:
-            cfg, cfg_dir = load_build_config(config)
-        tinfo = open_tour(Path(tour), cfg, cfg_dir, calibration, consumes="rgb")
-    except SemmapError as exc:
-        log.info("%s: no RGB image for the picture (%s)", tour, exc)
-        return None
-    topic = tinfo.topics.frames
-    if topic is None:
-        return None
-    compressed = tinfo.types.get(topic) == COMPRESSED_T
-    best, best_dt = None, max_offset_ns + 1
-    for _, t_bag, msg in iter_messages(tinfo.bag, [topic]):
-        dt = abs(header_stamp(msg.header) - stamp_ns)
-        if dt < best_dt:
-            best, best_dt = msg, dt
-        if t_bag > stamp_ns + 2_000_000_000:  # bag time runs a little behind capture time
-            break
-    if best is None:
-        return None
-    try:
-        img = compressed_image_from_msg(best, topic) if compressed else image_from_msg(best, topic)
-    except BagError as exc:
-        log.warning("%s: cannot decode the image for the picture: %s", topic, exc)
+    with contextlib.ExitStack() as stack:  # the bag, opened once
+        try:
+            if isinstance(config, BuildConfig):
+                cfg, cfg_dir = config, Path.cwd()
+            else:
+                cfg, cfg_dir = load_build_config(config)
+            src = stack.enter_context(read_bag(tour))
+            tinfo = open_tour(Path(tour), cfg, cfg_dir, calibration, consumes="rgb", source=src)
+        except SemmapError as exc:
+            log.info("%s: no RGB image for the picture (%s)", tour, exc)
+            return None
+        topic = tinfo.topics.frames
+        if topic is None:
+            return None
+        try:  # bag time runs a little behind capture time
+            img = src.nearest_stamp(topic, stamp_ns, max_offset_ns, until_ns=stamp_ns + 2_000_000_000)
+        except BagError as exc:
+            log.warning("%s: cannot decode the image for the picture: %s", topic, exc)
+            return None
+    if img is None:
         return None
     data = np.asarray(img.data)
     if data.ndim == 2:  # grey camera (or mono16): three equal 8-bit channels

@@ -27,6 +27,7 @@ Scans with no beams, or an angle increment of 0 or NaN, are skipped and counted
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -35,11 +36,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..config import BuildConfig, SyncConfig, merge_overrides
 from ..errors import BagError
-from ..io.bag import ReadStats, iter_messages, message_count, open_bag
-from ..io.messages import odometry_from_msg, scan_from_msg
+from ..io.bag import OpenBag, ReadStats, read_bag
 from ..io.tour import Tour, load_build_config, open_tour
 from ..records import Scan, Segmentation
 from ..segment.base import backend_consumes
@@ -85,14 +86,16 @@ class StreamCounts:
 class ScanStream:
     """The scans of ``tour`` paired with segmentations from ``frames`` and with the odometry.
 
-    Iterate once. The bag is opened for the iteration and closed at its end (or when the iterator is
-    closed). ``frames`` is not closed here: its owner closes it. ``progress(done, total)`` is called
-    every 50 scan messages and at the end.
+    Iterate once. ``bag``: the tour's bag already opened (:func:`~semmap.io.bag.read_bag`, as
+    :func:`open_build_tour` used it), else it is opened here; either way it is closed when the
+    iteration ends (or the iterator is closed). ``frames`` is not closed here: its owner closes it.
+    ``progress(done, total)`` is called every 50 scan messages and at the end.
     """
 
     def __init__(self, tour: Tour, sync: SyncConfig, frames: FrameSource | None = None,
-                 progress: ProgressFn | None = None) -> None:
+                 progress: ProgressFn | None = None, bag: OpenBag | None = None) -> None:
         self.tour = tour
+        self._bag = bag
         self.sync = sync
         self.frames = frames
         self.progress = progress
@@ -115,16 +118,18 @@ class ScanStream:
         tour = self.tour
         scan_topic = tour.topics.scan
         topics = [t for t in (scan_topic, tour.topics.odometry) if t]
-        with open_bag(tour.bag) as reader:  # opened once: counting and streaming share its index
-            total = message_count(tour.bag, scan_topic, reader)
+        with contextlib.ExitStack() as stack:  # opened once: the tour, counting and streaming share its index
+            bag = self._bag if self._bag is not None else stack.enter_context(read_bag(tour.bag, lazy=True))
+            stack.callback(bag.close)
+            total = bag.count(scan_topic)
             read = self.read_stats.read
-            for topic, t_bag, msg in iter_messages(tour.bag, topics, self.read_stats, reader):
+            for topic, t_bag, record in bag.records(topics, self.read_stats):
                 if topic == scan_topic:
-                    self._on_scan(t_bag, msg)
+                    self._on_scan(t_bag, record)
                     if self.progress is not None and read.get(topic, 0) % 50 == 0:
                         self.progress(read.get(topic, 0), total)
                 else:
-                    self._on_odometry(msg)
+                    self._on_odometry(record)
                 while self._pending and self._ready(t_bag, *self._pending[0]):
                     yield from self._pair(self._pending.popleft()[1])
             while self._pending:
@@ -133,14 +138,13 @@ class ScanStream:
             self.progress(total, total)
 
     # -- inputs -----------------------------------------------------------------------------
-    def _on_odometry(self, msg: object) -> None:
+    def _on_odometry(self, record: tuple[int, str, str, NDArray[np.float64]]) -> None:
         assert self.odometry is not None
-        stamp, _, _, pose = odometry_from_msg(msg, self.tour.topics.odometry or "")
+        stamp, _, _, pose = record
         self.odometry.add(stamp, pose)
         self.counts.odometry += 1
 
-    def _on_scan(self, t_bag: int, msg: object) -> None:
-        scan = scan_from_msg(msg, self.tour.topics.scan)
+    def _on_scan(self, t_bag: int, scan: Scan) -> None:
         if scan.ranges.size == 0 or not np.isfinite(scan.angle_increment) or scan.angle_increment == 0:
             self.counts.bad_scans += 1
             return
@@ -199,9 +203,11 @@ class ScanStream:
 
 
 def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = None,
-                    calibration: str | Path | None = None,
-                    overrides: dict[str, Any] | None = None) -> tuple[Tour, BuildConfig]:
+                    calibration: str | Path | None = None, overrides: dict[str, Any] | None = None,
+                    source: OpenBag | None = None) -> tuple[Tour, BuildConfig]:
     """The effective config and the opened tour, as ``semmap build`` sees them (also ``semmap paint``).
+    ``source``: the tour's bag, opened once for the whole build (:func:`~semmap.io.bag.read_bag`); pass
+    it on to :class:`ScanStream`.
 
     A simulated tour's manifest names the class list of its label images; it applies unless
     the config sets ``segmentation.class_list``.
@@ -215,7 +221,8 @@ def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = 
     tour_path = Path(tour)
     if not tour_path.exists():
         raise BagError(f"{tour_path}: no such file or directory")
-    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation))
+    tinfo = open_tour(tour_path, cfg, cfg_dir, calibration, consumes=backend_consumes(cfg.segmentation),
+                      source=source)
     seg = cfg.segmentation
     if (tinfo.manifest.get("label_classes") and "class_list" in type(seg).model_fields
             and "class_list" not in seg.model_fields_set):

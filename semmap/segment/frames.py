@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 from ..config import SegmentationConfig
 from ..errors import SemmapError
-from ..io.tour import COMPRESSED_T
-from ..records import Segmentation
+from ..records import Image, Segmentation
+from .base import Segmenter
 
 __all__ = ["FrameSource", "FrameReader", "InProcessFrames"]
 
@@ -47,34 +47,36 @@ class FrameReader:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
     here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
 
-    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig,
+    def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
                  counts: dict[str, int]) -> None:
-        from ..io.bag import iter_messages, open_bag
+        from ..io.bag import read_bag
         from .base import create_segmenter
 
         self._stack = contextlib.ExitStack()
         segmenter = create_segmenter(seg_cfg)
         self._stack.callback(segmenter.close)
         try:
-            reader = self._stack.enter_context(open_bag(bag))
+            opened = self._stack.enter_context(read_bag(bag))
         except BaseException:
             self._stack.close()
             raise
-        self._it = self._frames(iter_messages(bag, [topic], reader=reader), topic, msgtype, segmenter, counts)
+
+        def bad(topic: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped, counted
+            counts["bad_frames"] += 1
+            log.debug("skipped image on %s: %s", topic, exc)
+
+        self._it = self._frames(opened.records([topic], skip=bad), topic, segmenter, counts)
 
     @staticmethod
-    def _frames(messages: Iterator[tuple[str, int, Any]], topic: str, msgtype: str, segmenter: Any,
+    def _frames(images: Iterator[tuple[str, int, Image]], topic: str, segmenter: Segmenter,
                 counts: dict[str, int]) -> Iterator[Segmentation]:
-        from ..io.messages import compressed_image_from_msg, image_from_msg
-
-        for _, _, msg in messages:
+        for _, _, img in images:
             t0 = time.perf_counter()
             try:
-                img = compressed_image_from_msg(msg, topic) if msgtype == COMPRESSED_T else image_from_msg(msg, topic)
                 seg = segmenter.segment(img)
-            except SemmapError as exc:  # a bad frame is skipped and counted
+            except SemmapError as exc:  # an image the segmenter cannot take is skipped, counted
                 counts["bad_frames"] += 1
-                log.debug("skipped frame on %s: %s", topic, exc)
+                log.debug("skipped image on %s: %s", topic, exc)
                 continue
             counts["frames"] += 1
             counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
@@ -91,9 +93,9 @@ class FrameReader:
 class InProcessFrames:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
-    def __init__(self, bag: Path, topic: str, msgtype: str, seg_cfg: SegmentationConfig) -> None:
+    def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig) -> None:
         self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._source = FrameReader(bag, topic, msgtype, seg_cfg, self.counts)
+        self._source = FrameReader(bag, topic, seg_cfg, self.counts)
         self._it = iter(self._source)
 
     def next(self) -> Segmentation | None:

@@ -16,6 +16,7 @@ The command has no mapping stage, so decoding and inference run in the calling p
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import re
@@ -23,7 +24,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -35,13 +36,14 @@ from ..palette import class_color
 from ..records import Image, Segmentation
 from .base import backend_consumes, create_segmenter
 
+if TYPE_CHECKING:
+    from ..io.bag import OpenBag
+
 __all__ = ["SegmentResult", "segment_source", "iter_image_folder", "draw_overlay"]
 
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
-_IMAGE_T = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-_LABEL_HINTS = ("label", "seg", "mask", "semantic", "class")
 
 ProgressFn = Callable[[int, int], None]
 
@@ -101,38 +103,26 @@ class _Skipped:
                         "; ".join(f"{v} x {k}" for k, v in sorted(self.reasons.items(), key=lambda kv: -kv[1])))
 
 
-def _pick_topic(bag: Path, wanted: str | None, consumes: str) -> tuple[str, str]:
-    from ..io.bag import topic_types
+def _pick_topic(src: OpenBag, source: Path, wanted: str | None, consumes: str) -> str:
+    """The camera (or label image) topic, picked as ``semmap build`` picks it (``--topic`` names one)."""
+    from ..config import TopicsConfig
+    from ..io.topics import pick_topics
+    from ..io.tour import read_tour_manifest
 
-    types = topic_types(bag)
-    if wanted is not None:
-        if wanted not in types:
-            raise BagError(f"{bag}: topic {wanted} is not in the bag")
-        if types[wanted] not in _IMAGE_T:
-            raise BagError(f"{bag}: topic {wanted} is {types[wanted]}, not an image topic")
-        return wanted, types[wanted]
-    images = [t for t, ty in types.items() if ty in _IMAGE_T]
-    labels = [t for t in images if any(h in t.lower() for h in _LABEL_HINTS)]
-    cands = labels if consumes == "labels" else [t for t in images if t not in labels]
-    if len(cands) == 1:
-        return cands[0], types[cands[0]]
-    if not cands:
-        raise BagError(f"{bag}: no camera image topic in the bag")
-    raise BagError(f"{bag}: several image topics ({', '.join(sorted(cands))}); choose one with --topic")
+    manifest = read_tour_manifest(source)[2]
+    settings = TopicsConfig.model_validate({"labels" if consumes == "labels" else "image": wanted})
+    topics = pick_topics(src.types, settings, src.path, consumes, manifest, kinds=("frames",), required=("frames",),
+                         options={"image": "--topic", "labels": "--topic"})
+    assert topics.frames is not None  # required
+    return topics.frames
 
 
-def _iter_bag(bag: Path, topic: str, msgtype: str, stats: dict[str, int]) -> Iterator[tuple[str, Image]]:
-    from ..io.bag import iter_messages
-    from ..io.messages import compressed_image_from_msg, image_from_msg
+def _iter_bag(src: OpenBag, topic: str, stats: dict[str, int]) -> Iterator[tuple[str, Image]]:
+    def skipped(topic: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped and counted
+        stats["bad_frames"] += 1
+        log.debug("skipped a frame on %s: %s", topic, exc)
 
-    for _, _, msg in iter_messages(bag, [topic]):
-        try:
-            img = compressed_image_from_msg(msg, topic) if msgtype.endswith("CompressedImage") \
-                else image_from_msg(msg, topic)
-        except SemmapError as exc:
-            stats["bad_frames"] += 1
-            log.debug("skipped a frame on %s: %s", topic, exc)
-            continue
+    for _, _, img in src.records([topic], skip=skipped):
         yield str(img.stamp_ns), img
 
 
@@ -174,12 +164,19 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
                    overlays: bool = True, limit: int | None = None, force: bool = False,
                    progress: ProgressFn | None = None) -> SegmentResult:
     """Segment every image of a bag's camera topic (or of an image folder) into ``out``."""
-    from ..io.atomic import atomic_dir
-    from ..io.bag import message_count, resolve_bag_path
-
     src = Path(source)
     if not src.exists():
         raise ConfigError(f"{src}: no such file or directory")
+    with contextlib.ExitStack() as stack:  # the bag, opened once
+        return _segment_source(src, out, config, topic, overlays, limit, force, progress, stack)
+
+
+def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topic: str | None, overlays: bool,
+                    limit: int | None, force: bool, progress: ProgressFn | None,
+                    stack: contextlib.ExitStack) -> SegmentResult:
+    from ..io.atomic import atomic_dir
+    from ..io.bag import read_bag, resolve_bag_path
+
     consumes = backend_consumes(config)
     stats = {"bad_frames": 0}
     frames: Iterator[tuple[str, Image]]
@@ -189,9 +186,10 @@ def segment_source(source: str | Path, out: str | Path, config: SegmentationConf
     except BagError:
         bag = None
     if bag is not None:
-        tname, msgtype = _pick_topic(bag, topic, consumes)
-        frames = _iter_bag(bag, tname, msgtype, stats)
-        total = message_count(bag, tname)
+        opened = stack.enter_context(read_bag(bag))
+        tname = _pick_topic(opened, src, topic, consumes)
+        frames = _iter_bag(opened, tname, stats)
+        total = opened.count(tname)
         source_desc = {"bag": str(bag), "topic": tname}
     elif src.is_dir():
         frames = iter_image_folder(src)

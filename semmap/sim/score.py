@@ -413,8 +413,7 @@ def naive_map(tour: str | Path, resolution: float | None = None) -> NaiveMap:
     from ..errors import SemmapError
     from ..geometry import se3_from_xyz_rpy
     from ..grid.fusion import SemanticGrid
-    from ..io.bag import iter_messages, resolve_bag_path
-    from ..io.messages import scan_from_msg
+    from ..io.bag import iter_records
     from ..io.tum import read_tum
     from ..io.yamlio import read_yaml
     from ..records import PaintedScan
@@ -435,8 +434,7 @@ def naive_map(tour: str | Path, resolution: float | None = None) -> NaiveMap:
     ref_yaw = np.unwrap(ref_p[:, 2])
     layout: tuple[tuple[float, float, int], NDArray[np.float64]] | None = None
     n_scans = skipped = 0
-    for _, _, msg in iter_messages(resolve_bag_path(tour), [topic]):
-        scan = scan_from_msg(msg, topic)
+    for _, _, scan in iter_records(tour, [topic]):
         n = scan.ranges.size
         if n == 0:
             skipped += 1

@@ -1,0 +1,140 @@
+"""ROS message type names, and which of a bag's topics semmap reads.
+
+One place picks the topics, so ``semmap build``, ``semmap segment`` and ``semmap calibrate check``
+read the same camera topic from the same bag. A topic named in the settings (the config's
+``topics:``, or a command's option) is taken as it is (after checking it is in the bag and of a
+type that fits); a topic not named is detected from the message types when exactly one topic fits,
+and otherwise the error lists the candidates and names the setting that chooses one.
+
+Image topics are told apart by name: one named like a label image (:data:`LABEL_HINTS`) carries
+label images, one named like a depth image (:data:`NOT_CAMERA_HINTS`) is neither a camera picture
+nor a label image, and any other is the camera's pictures.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+from ..errors import BagError
+
+__all__ = [
+    "SCAN_T", "IMAGE_T", "COMPRESSED_T", "INFO_T", "ODOM_T", "TF_T", "IMAGE_TYPES",
+    "LABEL_HINTS", "NOT_CAMERA_HINTS", "TRUTH_HINTS", "TopicSettings", "Topics", "pick_topics",
+]
+
+SCAN_T = "sensor_msgs/msg/LaserScan"
+IMAGE_T = "sensor_msgs/msg/Image"
+COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
+INFO_T = "sensor_msgs/msg/CameraInfo"
+ODOM_T = "nav_msgs/msg/Odometry"
+TF_T = "tf2_msgs/msg/TFMessage"
+IMAGE_TYPES = (IMAGE_T, COMPRESSED_T)
+
+#: an image topic whose name holds one of these carries label images (see the conventions, "Label images")
+LABEL_HINTS = ("label", "seg", "mask", "semantic", "class")
+#: an image topic whose name holds one of these is neither the camera's pictures nor label images
+NOT_CAMERA_HINTS = ("depth",)
+#: an odometry topic whose name holds one of these is a reference, not the robot's own odometry
+TRUTH_HINTS = ("ground_truth", "groundtruth", "gt", "truth", "mocap", "vicon")
+
+Kind = Literal["scan", "odometry", "frames", "camera_info"]
+_ALL_KINDS: tuple[Kind, ...] = ("scan", "odometry", "frames", "camera_info")
+
+
+class TopicSettings(Protocol):
+    """The topic names a user set (the config's ``topics:``); None: detect it from the bag."""
+
+    scan: str | None
+    image: str | None
+    labels: str | None
+    camera_info: str | None
+    odometry: str | None
+    tf: str
+    tf_static: str
+
+
+@dataclass(frozen=True)
+class Topics:
+    scan: str  # "" only when the scan topic was not asked for
+    frames: str | None  # the image stream the segmenter consumes (labels or RGB)
+    frames_kind: str  # "labels" | "rgb" | "none"
+    odometry: str | None
+    tf_static: str | None
+    camera_info: str | None
+
+
+def _named(topic: str, hints: tuple[str, ...]) -> bool:
+    low = topic.lower()
+    return any(h in low for h in hints)
+
+
+def _pick(kind: str, wanted: str | None, candidates: list[str], types: Mapping[str, str], where: str,
+          required: bool, option: str, fits: tuple[str, ...] = ()) -> str | None:
+    if wanted is not None:
+        if wanted.lower() == "none":
+            return None
+        if wanted not in types:
+            raise BagError(f"{where}: topic {wanted} ({kind}) is not in the bag "
+                             f"(topics: {', '.join(sorted(types)) or 'none'})")
+        if fits and types[wanted] not in fits:
+            raise BagError(f"{where}: topic {wanted} is {types[wanted]}, not {' or '.join(fits)} ({kind})")
+        return wanted
+    if len(candidates) == 1:
+        return candidates[0]
+    if not candidates:
+        if required:
+            raise BagError(f"{where}: no {kind} topic in the bag; name one with {option}")
+        return None
+    raise BagError(f"{where}: several {kind} topics ({', '.join(sorted(candidates))}); choose one with {option}")
+
+
+def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | Path, consumes: str,
+                manifest: Mapping[str, Any] | None = None, *, kinds: Collection[Kind] = _ALL_KINDS,
+                required: Collection[Kind] = ("scan",), options: Mapping[str, str] | None = None) -> Topics:
+    """The topics to read from a bag whose topics have the message ``types``.
+
+    ``settings``: the names the user set; a topic not set is taken from the tour folder's
+    ``manifest`` (``tour.yaml``'s ``topics:``) when it names one in the bag, else detected from the
+    message types. ``consumes``: ``"labels"`` (the frames are label images) or ``"rgb"``. ``kinds``:
+    the topics wanted (the others are None); ``required``: those whose absence is an error.
+    ``options``: how the user names each kind (``{"image": "--topic"}``), for the error that says
+    how to choose; by default ``topics.<kind> in the config``.
+    """
+    where = str(where)
+    known = (manifest or {}).get("topics") or {}
+
+    def want(name: str) -> str | None:
+        v = getattr(settings, name)
+        if v is None and name in known and known[name] in types:
+            return str(known[name])
+        return v
+
+    def option(name: str) -> str:
+        return (options or {}).get(name) or f"topics.{name} in the config"
+
+    def of(*wanted_types: str) -> list[str]:
+        return [k for k, v in types.items() if v in wanted_types]
+
+    scan = odometry = frames = camera_info = None
+    frames_kind = "none"
+    if "scan" in kinds:
+        scan = _pick("scan", want("scan"), of(SCAN_T), types, where, "scan" in required, option("scan"), (SCAN_T,))
+    if "odometry" in kinds:
+        odoms = [k for k in of(ODOM_T) if not _named(k, TRUTH_HINTS)]
+        odometry = _pick("odometry", want("odometry"), odoms, types, where, "odometry" in required,
+                         option("odometry"), (ODOM_T,))
+    if "frames" in kinds:
+        images = [k for k in of(*IMAGE_TYPES) if not _named(k, NOT_CAMERA_HINTS)]
+        name = "labels" if consumes == "labels" else "image"
+        cands = [k for k in images if _named(k, LABEL_HINTS) == (consumes == "labels")]
+        frames = _pick(name, want(name), cands, types, where, "frames" in required, option(name), IMAGE_TYPES)
+        frames_kind = ("labels" if consumes == "labels" else "rgb") if frames else "none"
+    if "camera_info" in kinds:
+        infos = of(INFO_T)
+        camera_info = _pick("camera_info", want("camera_info"), infos, types, where, "camera_info" in required,
+                            option("camera_info"), (INFO_T,)) if infos or settings.camera_info else None
+    tf_static = settings.tf_static if settings.tf_static in types else None
+    return Topics(scan or "", frames, frames_kind, odometry, tf_static, camera_info)

@@ -35,7 +35,8 @@ from .errors import BagError, ConfigError
 from .grid.fusion import check_grid_memory
 from .io.atomic import atomic_dir
 from .io.bag import OpenBag, read_bag, resolve_bag_path
-from .io.tour import IMAGE_T, Tour
+from .io.topics import IMAGE_T
+from .io.tour import Tour
 from .mapfolder.summary import (
     BuildSummary,
     CountsSummary,

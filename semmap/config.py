@@ -42,6 +42,9 @@ __all__ = [
     "Sam3Segmentation",
     "SelfieSegmentation",
     "SEGMENTATION_BACKENDS",
+    "PLUGIN_SEGMENTATION",
+    "PluginSegmentation",
+    "register_segmentation_options",
     "AnySegmentation",
     "segmentation_config",
     "OcclusionConfig",
@@ -365,6 +368,27 @@ SEGMENTATION_BACKENDS: dict[str, type[SegmentationConfig]] = {
 }
 
 
+class PluginSegmentation(ModelSegmentationConfig):
+    """The options of a backend registered by a plugin without a model of its own: any keys, kept as
+    given (``cfg.<key>``), for the plugin to check."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+
+    backend: str
+
+
+#: backends registered at run time (:func:`semmap.segment.base.register`) → their options model
+PLUGIN_SEGMENTATION: dict[str, type[SegmentationConfig]] = {}
+
+
+def register_segmentation_options(name: str, model: type[SegmentationConfig] | None = None) -> None:
+    """Let ``segmentation: {backend: name, ...}`` in a config file name a plugin's backend, its options
+    validated by ``model`` (default :class:`PluginSegmentation`: any keys)."""
+    if name in SEGMENTATION_BACKENDS:
+        raise ValueError(f"{name!r} is a built-in segmentation backend")
+    PLUGIN_SEGMENTATION[name] = model or PluginSegmentation
+
+
 def _is_default(key: str, value: Any) -> bool:
     """Whether ``value`` is what every backend having option ``key`` takes by default."""
     owners = [m.model_fields[key] for m in SEGMENTATION_BACKENDS.values() if key in m.model_fields]
@@ -384,9 +408,11 @@ def _one_backends_keys(data: Any) -> Any:
     if not isinstance(data, dict):
         raise PydanticCustomError("dict_type", "expected a mapping: backend and its options")
     backend = data.get("backend", "topic")
+    if isinstance(backend, str) and backend in PLUGIN_SEGMENTATION and backend not in SEGMENTATION_BACKENDS:
+        return PLUGIN_SEGMENTATION[backend].model_validate(data)  # a plugin's model, validated as it says
     model = SEGMENTATION_BACKENDS.get(backend) if isinstance(backend, str) else None
     if model is None:
-        known = ", ".join(sorted(SEGMENTATION_BACKENDS))
+        known = ", ".join(sorted([*SEGMENTATION_BACKENDS, *PLUGIN_SEGMENTATION]))
         raise PydanticCustomError("unknown_backend", "unknown backend {backend} (available: {known})",
                                   {"backend": repr(backend), "known": known})
     other = {k for m in SEGMENTATION_BACKENDS.values() for k in m.model_fields} - set(model.model_fields)
@@ -403,12 +429,16 @@ def _one_backends_keys(data: Any) -> Any:
 def _backend_tag(v: Any) -> str | None:
     if isinstance(v, dict):
         return str(v.get("backend", "topic"))
-    return getattr(v, "backend", None) if isinstance(v, SegmentationConfig) else None
+    if isinstance(v, SegmentationConfig):  # a model given from Python: a plugin's own, or a built-in one
+        return v.backend if v.backend in SEGMENTATION_BACKENDS else "plugin"
+    return None
 
 
-#: ``segmentation:`` of a config file: one of the built-in backends' models, picked by ``backend``
+#: ``segmentation:`` of a config file: one of the built-in backends' models, picked by ``backend``, or
+#: the options model of a backend a plugin registered (:func:`register_segmentation_options`)
 AnySegmentation = Annotated[
-    Union[tuple(Annotated[m, Tag(name)] for name, m in SEGMENTATION_BACKENDS.items())],  # type: ignore[valid-type]
+    Union[(*(Annotated[m, Tag(name)] for name, m in SEGMENTATION_BACKENDS.items()),  # type: ignore[valid-type]
+           Annotated[SegmentationConfig, Tag("plugin")])],
     Discriminator(_backend_tag),
     BeforeValidator(_one_backends_keys),
 ]

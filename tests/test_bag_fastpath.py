@@ -126,5 +126,5 @@ def test_a_build_opens_its_bag_once(short_tour, tmp_path, monkeypatch):
     assert opened == [short_tour.bag]
     opened.clear()
     res = build(short_tour.out, tmp_path / "map", overrides={"workers": False})
-    assert res.summary["painting"]["scans_painted"] > 0
+    assert res.summary.painting.scans_painted > 0
     assert opened == [short_tour.bag, short_tour.bag]  # the tour, and its label images (InProcessFrames)

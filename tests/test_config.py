@@ -192,3 +192,40 @@ def test_a_class_table_of_ones_own_names_the_label_values(tmp_path):
     table = load_class_table(tmp_path / "classes.yaml")
     assert table.names("site") == ("robot", "cart")
     assert table.mobility_of("robot") is Mobility.DYNAMIC and table.size_of("cart") == 1.2
+
+
+def test_a_plugin_backend_is_named_in_a_config_file_and_its_options_checked(tmp_path):
+    """A backend registered by a plugin (segment.base.register) can be chosen in YAML like a built-in one;
+    its own options model validates its keys, and without one any key is kept for the plugin."""
+    from typing import Literal
+
+    from semmap.config import PLUGIN_SEGMENTATION, ModelSegmentationConfig, PluginSegmentation
+    from semmap.errors import ConfigError
+    from semmap.io.tour import load_build_config
+    from semmap.segment import base
+
+    class DepthNetOptions(ModelSegmentationConfig):
+        backend: Literal["depthnet"] = "depthnet"
+        levels: int = 3
+
+    try:
+        base.register("depthnet", options=DepthNetOptions)(lambda cfg: None)
+        base.register("anynet")(lambda cfg: None)
+        f = tmp_path / "c.yaml"
+        f.write_text("segmentation: {backend: depthnet, levels: 5, device: cpu}\n")
+        cfg, _ = load_build_config(f)
+        assert isinstance(cfg.segmentation, DepthNetOptions) and cfg.segmentation.levels == 5
+        f.write_text("segmentation: {backend: depthnet, levels: many}\n")
+        with pytest.raises(ConfigError, match="segmentation.levels"):
+            load_build_config(f)
+        f.write_text("segmentation: {backend: anynet, stride: 8}\n")
+        cfg, _ = load_build_config(f)
+        assert isinstance(cfg.segmentation, PluginSegmentation) and cfg.segmentation.stride == 8
+        f.write_text("segmentation: {backend: nonet}\n")
+        with pytest.raises(ConfigError, match="unknown backend 'nonet'"):
+            load_build_config(f)
+    finally:
+        for name in ("depthnet", "anynet"):
+            base.SEGMENTERS.pop(name, None)
+            base.CONSUMES.pop(name, None)
+            PLUGIN_SEGMENTATION.pop(name, None)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from semmap.cli.main import main
+from semmap.config import PLUGIN_SEGMENTATION
 from semmap.geometry import se3_from_xyz_rpy
 from semmap.records import CameraIntrinsics, Image, Scan, Segmentation
 from semmap.segment import base
@@ -41,6 +42,7 @@ def bright_backend():
     yield _Bright
     base.SEGMENTERS.pop("test-bright", None)
     base.CONSUMES.pop("test-bright", None)
+    PLUGIN_SEGMENTATION.pop("test-bright", None)
 
 
 def _bag(path, cameras):
@@ -91,8 +93,8 @@ def test_build_segment_and_check_pick_the_same_camera_topic(tmp_path, bright_bac
     bag = _bag(tmp_path / "two.bag", {"/camera/depth/image_raw": "depth", "/camera/image_raw": "rgb"})
     res = build(bag, tmp_path / "map", overrides={"workers": False, "segmentation": {"backend": "test-bright"},
                                                   "topics": {"odometry": "none"}})
-    assert res.summary["tour"]["topics"]["frames"] == "/camera/image_raw"
-    assert res.summary["painting"]["scans_painted"] > 0
+    assert res.summary.tour.topics.frames == "/camera/image_raw"
+    assert res.summary.painting.scans_painted > 0
 
     assert main(["segment", str(bag), "--backend", "test-bright", "--out", str(tmp_path / "seg")]) == 0
     summary = json.loads((tmp_path / "seg" / "summary.json").read_text())
@@ -125,7 +127,7 @@ def test_two_colour_cameras_are_one_error_naming_both_and_the_setting(tmp_path, 
     # named, the choice is the same everywhere
     res = build(bag, tmp_path / "map", overrides={"workers": False, "segmentation": {"backend": "test-bright"},
                                                   "topics": {"odometry": "none", "image": "/rear/image_raw"}})
-    assert res.summary["tour"]["topics"]["frames"] == "/rear/image_raw"
+    assert res.summary.tour.topics.frames == "/rear/image_raw"
     assert main(["segment", str(bag), "--backend", "test-bright", "--topic", "/rear/image_raw", "--out",
                  str(tmp_path / "seg")]) == 0
     assert frame_from_bag(bag, image_topic="/rear/image_raw")[0].shape == (H, W, 3)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from semmap.cli.main import main
-from semmap.config import ModelSegmentationConfig, OnnxSegmentation, SegmentationConfig
+from semmap.config import PLUGIN_SEGMENTATION, ModelSegmentationConfig, OnnxSegmentation, SegmentationConfig
 from semmap.records import Image, Segmentation
 from semmap.segment import base
 
@@ -52,6 +52,7 @@ def counting_backend():
     yield _Counting
     base.SEGMENTERS.pop("test-counting", None)
     base.CONSUMES.pop("test-counting", None)
+    PLUGIN_SEGMENTATION.pop("test-counting", None)
 
 
 def _img(stamp, value=200):

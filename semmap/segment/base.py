@@ -36,7 +36,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Literal, Protocol, runtime_checkable
 
-from ..config import ModelSegmentationConfig, SegmentationConfig
+from ..config import SEGMENTATION_BACKENDS, ModelSegmentationConfig, SegmentationConfig, register_segmentation_options
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 
@@ -72,10 +72,17 @@ SEGMENTERS: dict[str, SegmenterFactory] = {}
 CONSUMES: dict[str, str] = {}
 
 
-def register(name: str, consumes: Literal["rgb", "labels"] = "rgb") -> Callable[[SegmenterFactory], SegmenterFactory]:
+def register(name: str, consumes: Literal["rgb", "labels"] = "rgb",
+             options: type[SegmentationConfig] | None = None) -> Callable[[SegmenterFactory], SegmenterFactory]:
+    """Register a segmentation backend: ``factory(cfg)`` makes the segmenter from its options. A plugin's
+    backend (not one of semmap's own) can then be named in a config file (``segmentation: {backend:
+    name, ...}``), its options validated by ``options`` (default: any keys, see
+    :class:`~semmap.config.PluginSegmentation`)."""
     def deco(factory: SegmenterFactory) -> SegmenterFactory:
         SEGMENTERS[name] = factory
         CONSUMES[name] = consumes
+        if name not in SEGMENTATION_BACKENDS:
+            register_segmentation_options(name, options)
         return factory
 
     return deco

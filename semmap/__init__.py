@@ -44,7 +44,7 @@ _LAZY = {
 
 _RENAMED = {"load_map": "load_map_folder"}
 
-__all__ = ["__version__", *_LAZY]
+__all__ = ["__version__", *_LAZY]  # noqa: PLE0604 - the lazy names are strings
 
 if TYPE_CHECKING:  # pragma: no cover
     # ruff: noqa: F401

@@ -15,25 +15,25 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "wrap_angle",
+    "is_rotation",
+    "matrix_to_se2",
+    "project_points",
+    "quaternion_to_yaw",
+    "se2_apply",
+    "se2_between",
     "se2_compose",
     "se2_inverse",
-    "se2_between",
-    "se2_apply",
     "se2_to_matrix",
-    "matrix_to_se2",
     "se2_to_se3",
-    "se3_to_se2",
-    "se3_inverse",
-    "se3_from_xyz_rpy",
-    "se3_from_translation_quaternion",
-    "se3_to_translation_quaternion",
     "se3_apply",
-    "yaw_to_quaternion",
-    "quaternion_to_yaw",
-    "is_rotation",
-    "project_points",
+    "se3_from_translation_quaternion",
+    "se3_from_xyz_rpy",
+    "se3_inverse",
+    "se3_to_se2",
+    "se3_to_translation_quaternion",
     "unproject_pixels",
+    "wrap_angle",
+    "yaw_to_quaternion",
 ]
 
 

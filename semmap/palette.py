@@ -6,7 +6,7 @@ import hashlib
 
 from .records import Mobility
 
-__all__ = ["class_color", "MOBILITY_COLORS"]
+__all__ = ["MOBILITY_COLORS", "class_color"]
 
 _FIXED: dict[str, tuple[int, int, int]] = {
     "person": (230, 25, 75),

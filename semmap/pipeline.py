@@ -58,7 +58,7 @@ from .segment.frames import FrameSource, InProcessFrames
 from .version import __version__
 from .workers import FrameWorker, InProcessMapper, Mapper, MapperResult, MapperWorkers
 
-__all__ = ["build", "BuildResult"]
+__all__ = ["BuildResult", "build"]
 
 
 log = logging.getLogger(__name__)

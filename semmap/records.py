@@ -17,14 +17,14 @@ from .geometry import is_rotation, se3_inverse
 
 __all__ = [
     "REGION_BASE",
-    "Mobility",
-    "CameraIntrinsics",
     "Calibration",
-    "Scan",
-    "Image",
+    "CameraIntrinsics",
     "GridSpec",
-    "Segmentation",
+    "Image",
+    "Mobility",
     "PaintedScan",
+    "Scan",
+    "Segmentation",
 ]
 
 

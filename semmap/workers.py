@@ -66,8 +66,16 @@ from .segment.frames import FrameReader, FrameSource, InProcessFrames
 if TYPE_CHECKING:
     from .grid import GridLayers
 
-__all__ = ["FrameSource", "Mapper", "InProcessFrames", "FrameWorker", "InProcessMapper", "MapperWorkers",
-           "MapperResult", "signals_held"]
+__all__ = [
+    "FrameSource",
+    "FrameWorker",
+    "InProcessFrames",
+    "InProcessMapper",
+    "Mapper",
+    "MapperResult",
+    "MapperWorkers",
+    "signals_held",
+]
 
 log = logging.getLogger(__name__)
 
@@ -199,7 +207,7 @@ class _PipeLogHandler(logging.Handler):
             if record.exc_info:
                 text += "\n" + "".join(traceback.format_exception(*record.exc_info)).rstrip()
             self._conn.send(("log", record.name, record.levelno, text, self._process))
-        except Exception:  # noqa: BLE001 - a log record must never take a worker down
+        except Exception:
             pass
 
 
@@ -238,7 +246,7 @@ def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, in
     except MemoryError as exc:
         with contextlib.suppress(OSError):
             out.send(("error", "memory", "MemoryError", str(exc), ""))
-    except BaseException as exc:  # noqa: BLE001 - a bug: report it with its traceback
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             out.send(("error", "bug", type(exc).__name__, str(exc), traceback.format_exc()))
     finally:
@@ -525,10 +533,8 @@ class FrameWorker:
         """The mapper is done with ``seg``: its slot may be reused."""
         i = self._slot_of.pop(id(seg), None)
         if i is not None:
-            try:
+            with contextlib.suppress(OSError):  # the worker is gone; the next read says why
                 self._freed.send(i)
-            except OSError:  # the worker is gone; the next read says why
-                pass
 
     def close(self) -> None:
         with signals_held():

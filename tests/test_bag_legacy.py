@@ -83,7 +83,7 @@ def _rosbags_opens(bag: Path) -> str:
     try:
         with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)):
             return "ok"
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         return f"{type(exc).__name__}: {exc}"
 
 
@@ -206,7 +206,8 @@ def test_unindexed_bags_are_reindexed_from_their_chunks(scans_bag, tmp_path, com
 
     src = scans_bag
     if compression:
-        src = _lidar_only(scans_bag, tmp_path / "packed.bag", Writer, compression=Writer.CompressionFormat[compression.upper()])
+        src = _lidar_only(scans_bag, tmp_path / "packed.bag", Writer,
+                          compression=Writer.CompressionFormat[compression.upper()])
     bag = make_legacy_bag(src, tmp_path / "never_closed.bag", unindexed=True)
     before = sorted(p.name for p in tmp_path.iterdir())
     assert "not indexed" in _rosbags_opens(bag)
@@ -300,7 +301,8 @@ def test_a_bag_damaged_beyond_repair_is_one_clear_line(scans_bag, tmp_path, caps
     bag = make_legacy_bag(scans_bag, tmp_path / "never_closed.bag", unindexed=True)
     chunk = [r for r in read_bag(bag) if r.op == OP_CHUNK][1]
     hlen = struct.unpack_from("<I", bag.read_bytes(), chunk.pos)[0]
-    broken = _damage_chunk(bag, tmp_path / "broken.bag", chunk, 4 + hlen + 4 + 2, b"\xff\xff")  # its first record's header
+    # its first record's header
+    broken = _damage_chunk(bag, tmp_path / "broken.bag", chunk, 4 + hlen + 4 + 2, b"\xff\xff")
     code = main(["info", str(broken)])
     err = _one_line_error(capsys, code, str(broken), f"chunk at byte {chunk.pos}", "bag is damaged")
     assert err.startswith("semmap info: error: ")

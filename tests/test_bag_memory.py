@@ -135,7 +135,8 @@ def test_overlapping_chunks_read_in_rosbags_order(tmp_path, monkeypatch, compres
     monkeypatch.setattr(fastbag, "_SPARSE_MIN_BYTES", 0)  # record by record wherever the chunks allow it
     monkeypatch.setattr(fastbag, "_RELEASE_BYTES", 4096)
     mid = (start + end) // 2
-    for topics, lo, hi, reverse in ((None, None, None, False), (["/a"], None, None, False), (["/a", "/c"], None, None, True),
+    for topics, lo, hi, reverse in ((None, None, None, False), (["/a"], None, None, False),
+                                    (["/a", "/c"], None, None, True),
                                     (["/b", "/c"], mid, mid + 10**9, False), (None, start, mid, True)):
         want, conns, times, counts = _theirs(bag, topics, lo, hi, reverse)
         with open_bag(bag) as reader:
@@ -188,7 +189,8 @@ def test_mcap_chunks_read_in_rosbags_order(tmp_path, monkeypatch):
         want = _theirs(bag, topics)[0]
         with open_bag(bag) as reader:
             chunks = reader.readers[0].storage.storages[0].chunks
-            assert len(chunks) > 5 and any(b.message_start_time < a.message_end_time for a, b in itertools.pairwise(chunks))
+            assert len(chunks) > 5
+            assert any(b.message_start_time < a.message_end_time for a, b in itertools.pairwise(chunks))
             conns = [c for c in reader.connections if c.topic in topics]
             records = mcap_records(reader, conns)
             assert records is not None

@@ -42,7 +42,7 @@ def test_eq5_inverting_the_published_camera_to_lidar_transform(tmp_path):
     p_cam = p_lidar @ calib.T_cam_lidar[:3, :3].T + calib.T_cam_lidar[:3, 3]
     assert np.allclose(p_cam, p_cam_eq5, atol=1e-12)
     intr = calib.intrinsics
-    uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height)
+    _uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height)
     assert inside[0]
 
     # the file writes both directions, named, and reads back the same

@@ -359,8 +359,10 @@ def test_images_that_do_not_fit_their_size_name_the_topic_and_field():
         return NS(**msg)
 
     assert image_from_msg(image()).data.shape == (4, 3)
-    for fields, needle in (({"height": 0}, "3x0 pixels"), ({"data": np.zeros(11, np.uint8)}, "shorter than height x step"),
-                           ({"step": 2}, "step 2 is shorter than a row"), ({"height": 2**31}, "shorter than height x step")):
+    for fields, needle in (({"height": 0}, "3x0 pixels"),
+                           ({"data": np.zeros(11, np.uint8)}, "shorter than height x step"),
+                           ({"step": 2}, "step 2 is shorter than a row"),
+                           ({"height": 2**31}, "shorter than height x step")):
         with pytest.raises(BagError, match=needle) as err:
             image_from_msg(image(**fields), "/camera/labels")
         assert "/camera/labels" in str(err.value)
@@ -375,7 +377,8 @@ def test_a_tour_with_damaged_messages_still_builds(tours, tmp_path, capsys):
     tour, cfg = tours[0]["ros1"], tours[1]
     store = _typestore("ros1")
     damage = {
-        ("/scan", 5): lambda m: (setattr(m, "range_max", 1e30), setattr(m, "ranges", np.full(m.ranges.size, 1e20, np.float32))),
+        ("/scan", 5): lambda m: (setattr(m, "range_max", 1e30),
+                                 setattr(m, "ranges", np.full(m.ranges.size, 1e20, np.float32))),
         ("/scan", 9): lambda m: setattr(m, "time_increment", 1e9),
         ("/scan", 12): lambda m: setattr(m, "angle_min", float("nan")),
         ("/odom", 40): lambda m: setattr(m.pose.pose.position, "x", 1e30),

@@ -36,11 +36,11 @@ def test_raw_images_with_row_padding_and_byte_order():
 def test_jpeg_and_png_compressed_images():
     rgb = np.zeros((20, 30, 3), np.uint8)
     rgb[:, :15] = (200, 30, 30)
-    ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    _, jpg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     img = compressed_image_from_msg(NS(header=_hdr(), format="rgb8; jpeg compressed bgr8", data=jpg.reshape(-1)))
     assert img.encoding == "rgb8" and np.abs(img.data[5, 5].astype(int) - (200, 30, 30)).max() < 12
     lab = np.array([[0, 1], [2, 80]], np.uint8)
-    ok, png = cv2.imencode(".png", lab)
+    _ok, png = cv2.imencode(".png", lab)
     img = compressed_image_from_msg(NS(header=_hdr(), format="mono8; png compressed", data=png.reshape(-1)))
     assert img.encoding == "mono8" and np.array_equal(img.data, lab)
 
@@ -103,7 +103,7 @@ def test_segmentation_files_in_a_config_are_relative_to_it(tmp_path):
     site = tmp_path / "site"
     site.mkdir()
     (site / "build.yaml").write_text("segmentation: {backend: folder, folder: labels}\n")
-    cfg, base = load_build_config(site / "build.yaml")
+    cfg, _base = load_build_config(site / "build.yaml")
     assert cfg.segmentation.folder == site.resolve() / "labels"
     (site / "onnx.yaml").write_text("segmentation: {backend: onnx, model: m.onnx, cache_dir: /abs/cache}\n")
     onnx, _ = load_build_config(site / "onnx.yaml")

@@ -36,7 +36,10 @@ def scene(points, label_of_column, beam_spacing_deg=0.25):
     return xy, labels, uv, footprint, img
 
 
-def run(points, label_of_column, params=OcclusionConfig(), **kw):
+DEFAULT = OcclusionConfig()
+
+
+def run(points, label_of_column, params=DEFAULT, **kw):
     xy, labels, uv, footprint, img = scene(points, label_of_column, **kw)
     targets = labels > 0
     return hidden_points(xy, np.zeros(2), labels, uv, targets, footprint, img, params), labels
@@ -113,7 +116,7 @@ def test_a_wall_point_on_the_mask_between_objects_too_far_apart_is_left_alone():
     # two people 2.6 m apart (beyond max_gap): the wall between them stays as painted
     a, b = person_at(3.0, n=7, y0=-1.3), person_at(3.0, n=7, y0=1.3)
     wall = wall_at(6.0, -0.3, 0.3)
-    hidden, labels = run(a + b + wall, lambda c: PERSON, OcclusionConfig(line_step=0))
+    hidden, _labels = run(a + b + wall, lambda c: PERSON, OcclusionConfig(line_step=0))
     assert not hidden[14:].any()
 
 

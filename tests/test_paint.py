@@ -224,5 +224,6 @@ def test_furniture_points_name_the_object_the_camera_saw_them_on():
     assert np.all(painted.instance[~(a | b)] == -1)  # walls are not furniture
 
     instance = np.where(frame.label > 0, frame.owner + 1, 0).astype(np.uint16)
-    painted = _painter(t_base_lidar, calib).paint(scan, None, Segmentation(0, frame.label, COCO, instance=instance)).painted
+    seg = Segmentation(0, frame.label, COCO, instance=instance)
+    painted = _painter(t_base_lidar, calib).paint(scan, None, seg).painted
     assert set(painted.instance[a]) == {4} and set(painted.instance[b]) == {5}

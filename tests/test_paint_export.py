@@ -78,7 +78,7 @@ def test_picker_keeps_the_scan_with_most_relabelled_points(exported):
 
 
 def test_cli_writes_csv_and_picture_and_refuses_to_overwrite(exported, tmp_path, capsys):
-    tour, _, data, _, most, _ = exported
+    tour, _, data, _, _most, _ = exported
     table, png = tmp_path / "painted.csv", tmp_path / "fig6.png"
     assert main(["paint", str(tour.out), "--out", str(table), "--picture", str(png), "-q"]) == 0
     with open(table, newline="") as fh:

@@ -74,6 +74,6 @@ def test_first_hit_picks_the_nearest_of_many():
     walls = [wall(i + 1, x, -2, x, 2) for i, x in enumerate(rng.uniform(2, 9, 8))]
     ps = _set(walls)
     dirs = np.array([[1.0, 0.0]])
-    dist, part, _ = first_hit(np.zeros(2), dirs, ps)
+    dist, _part, _ = first_hit(np.zeros(2), dirs, ps)
     nearest = min(p.polygon[:, 0].min() for o in walls for p in o.parts)
     assert dist[0] == pytest.approx(nearest)

@@ -135,7 +135,7 @@ def test_input_resolution_scales_to_the_memory_budget(tiny_sam3):
         seg = Sam3Segmenter(Sam3Segmentation(model=tiny_sam3, prompts=PROMPTS, imgsz=448,
                                                memory_budget_mb=budget))
         side = seg.input_side
-        assert side % 28 == 0 and seg.activation_mb(side) <= budget or side == 28
+        assert (side % 28 == 0 and seg.activation_mb(side) <= budget) or side == 28
         res = seg.segment(_frame())  # every chosen resolution runs (rotary positions follow it)
         assert res.label.shape == (120, 160)
         sides.append(side)

@@ -131,7 +131,7 @@ def test_furniture_stands_against_walls_and_never_overlaps(worlds, seed):
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_people_play_their_roles(worlds, seed):
-    sc, cfg, traj = worlds[seed]
+    sc, _cfg, _traj = worlds[seed]
     people = sc.world.people
     roles = [person_role(p.name) for p in people]
     standing = [p for p, r in zip(people, roles) if r == "standing"]
@@ -152,7 +152,7 @@ def test_people_play_their_roles(worlds, seed):
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_the_guide_walks_ahead_of_the_robot_then_stands(worlds, seed):
-    sc, cfg, traj = worlds[seed]
+    sc, _cfg, traj = worlds[seed]
     guide = next(p for p in sc.world.people if person_role(p.name) == "guide")
     t = np.arange(0.0, traj.duration, 0.05)
     st = np.array([guide.state(float(x)) for x in t])
@@ -162,7 +162,7 @@ def test_the_guide_walks_ahead_of_the_robot_then_stands(worlds, seed):
     rel = st[walking, :2] - pose[:, :2]
     dist = np.hypot(rel[:, 0], rel[:, 1])
     ahead = rel[:, 0] * np.cos(pose[:, 2]) + rel[:, 1] * np.sin(pose[:, 2])
-    assert 1.2 <= dist.min() and dist.max() <= 2.5
+    assert dist.min() >= 1.2 and dist.max() <= 2.5
     assert ahead.min() > 0.0
     last = np.nonzero(walking)[0][-1]
     assert not walking[last + 1:].any()  # then stands for the rest of the tour

@@ -39,7 +39,7 @@ ACFR_D = [0.11418155, 0.19343114, -0.00268067, 0.00371577, -1.09539701]
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import machine  # noqa: E402
+from benchlib import machine
 
 
 def stats(a: list[float]) -> dict[str, float]:
@@ -277,7 +277,8 @@ def main() -> int:
             print(f"| {v['name']} | {v['points']} | {v['rms_mm']:.1f} | {v['mean_mm']:+.1f} | "
                   f"{v['board_rms_px']:.2f} | {e} |")
         t = a["T_lidar_cam_translation_m"]
-        print(f"\nAll views: line-to-plane RMS {a['rms_mm']:.1f} mm (range noise on the boards {a['range_noise_mm']:.1f} mm); "
+        print(f"\nAll views: line-to-plane RMS {a['rms_mm']:.1f} mm "
+              f"(range noise on the boards {a['range_noise_mm']:.1f} mm); "
               f"board normals leave their common plane by {a['normal_spread_deg']:.1f}°, so "
               f"{', '.join(a['unobservable'])} are held at the prior; 1-σ yaw {a['yaw_std_deg']:.2f}°, "
               f"x/y {a['xy_std_m'][0] * 100:.1f}/{a['xy_std_m'][1] * 100:.1f} cm. The camera sits at "

@@ -75,7 +75,7 @@ class Tour:
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import machine  # noqa: E402
+from benchlib import machine
 
 
 def load_tour(path: str | Path) -> Tour:

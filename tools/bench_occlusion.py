@@ -50,8 +50,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
-from bench_build import run_build, score_simulated  # noqa: E402
-from benchlib import machine  # noqa: E402
+from bench_build import run_build, score_simulated
+from benchlib import machine
 
 LIDAR_X, LIDAR_Z, CORNER_YAW = 0.38, 0.2, math.pi / 4
 CAMERA_XY = np.array([0.42, 0.0])  # the simulator's default camera mount (not changed here)

@@ -55,7 +55,7 @@ class TourData:
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import machine  # noqa: E402
+from benchlib import machine
 
 
 def load_tour(tour: str | Path, deskew: bool = True, limit: int | None = None) -> TourData:

@@ -48,7 +48,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 sys.path.insert(0, str(REPO / "tests"))  # sam3_helpers: the random-weight SAM 3 models
-from benchlib import machine  # noqa: E402
+from benchlib import machine
 
 #: FPS targets at 640×480 per backend (label prefix): the selfie model ran at 4-7 ms per image when
 #: tests/test_segment_selfie.py asserted > 20 FPS; YOLO11n-seg's is the one docs/benchmarks.md gives
@@ -266,7 +266,7 @@ def main() -> int:
                                Sam3Segmentation(model=sam3_dir, prompts=coco[:n],
                                                 threads=args.threads),
                                max(3, args.runs // 5)))
-    except Exception as exc:  # noqa: BLE001 - report what could not run
+    except Exception as exc:
         results["notes"].append(f"sam3: {type(exc).__name__}: {exc}")
     if args.ultralytics_pt:
         candidates.append(("ultralytics", UltralyticsSegmentation(model=args.ultralytics_pt),
@@ -274,7 +274,7 @@ def main() -> int:
     else:
         try:
             import ultralytics  # noqa: F401
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             results["notes"].append(f"ultralytics: does not import here ({type(exc).__name__}: "
                                     f"{str(exc).splitlines()[0][:120]})")
 
@@ -284,7 +284,7 @@ def main() -> int:
     for label, cfg, runs in candidates:
         try:
             r = time_backend(cfg, rgb, runs)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             results["notes"].append(f"{label}: {type(exc).__name__}: {exc}")
             continue
         results["fps"][label] = r
@@ -299,7 +299,7 @@ def main() -> int:
     if sam3_dir is not None and not args.skip_sam3_scaling:
         try:
             sam3_scaling(sam3_dir, rgb, args, results)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             results["notes"].append(f"sam3 scaling: {type(exc).__name__}: {exc}")
 
     if not args.skip_pipeline:

@@ -44,8 +44,8 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
-from bench_build import run_build  # noqa: E402
-from benchlib import machine  # noqa: E402
+from bench_build import run_build
+from benchlib import machine
 
 # The scoring worlds. These seeds are for scoring only: never look at their worlds or maps,
 # and never use them while developing or tuning (use --dev or --seeds); otherwise the scores
@@ -284,7 +284,7 @@ def main() -> int:
                     tour, sim_s = fut.result()
                     row = run_world(name, Path(tour), maps)
                     row["simulate_s"] = sim_s
-                except Exception as exc:  # noqa: BLE001 - one failed world must not lose the others
+                except Exception as exc:
                     last = (str(exc).strip().splitlines() or [""])[-1]
                     row = {"world": name, "error": f"{type(exc).__name__}: {last}"}
                     print(traceback.format_exc(), file=sys.stderr)

@@ -36,7 +36,7 @@ print(json.dumps({"wall_s": wall, "tour_s": r.duration_s, "bag_mb": info.size_by
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import machine  # noqa: E402
+from benchlib import machine
 
 
 def main() -> int:
@@ -51,7 +51,7 @@ def main() -> int:
             out = Path(tmp) / name
             t = time.perf_counter()
             res = subprocess.run([sys.executable, "-c", CHILD, name, str(out), args.format],
-                                 capture_output=True, text=True)
+                                 capture_output=True, text=True, check=False)
             if res.returncode != 0:
                 print(res.stderr, file=sys.stderr)
                 return 1

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError
 
-__all__ = ["BoardSpec", "BoardDetection", "parse_board_spec", "detect_board", "board_texture"]
+__all__ = ["BoardDetection", "BoardSpec", "board_texture", "detect_board", "parse_board_spec"]
 
 BoardKind = Literal["chessboard", "charuco", "aruco"]
 

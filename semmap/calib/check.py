@@ -23,7 +23,7 @@ from ..geometry import project_points, se3_apply
 from ..records import Calibration, Image, Scan
 from .scans import ranges_to_points, read_scan_points
 
-__all__ = ["CheckResult", "draw_scan_on_image", "check_calibration", "read_image", "frame_from_bag"]
+__all__ = ["CheckResult", "check_calibration", "draw_scan_on_image", "frame_from_bag", "read_image"]
 
 log = logging.getLogger(__name__)
 

@@ -16,12 +16,12 @@ from scipy.spatial.transform import Rotation
 from ..records import CameraIntrinsics
 
 __all__ = [
-    "pose_error",
-    "se3_from_rotvec",
-    "rotvec_translation",
-    "project",
-    "normalize_pixels",
     "ideal_intrinsics",
+    "normalize_pixels",
+    "pose_error",
+    "project",
+    "rotvec_translation",
+    "se3_from_rotvec",
 ]
 
 

@@ -27,7 +27,7 @@ from ..records import CameraIntrinsics
 from .common import ideal_intrinsics, normalize_pixels, project, rotvec_translation, se3_from_rotvec
 from .pairs import PointPixelPairs
 
-__all__ = ["PairsCalibration", "calibrate_from_pairs", "MIN_PAIRS"]
+__all__ = ["MIN_PAIRS", "PairsCalibration", "calibrate_from_pairs"]
 
 log = logging.getLogger(__name__)
 

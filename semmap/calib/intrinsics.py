@@ -22,7 +22,7 @@ from ..errors import ConfigError
 from ..records import CameraIntrinsics
 from .boards import BoardDetection, BoardSpec, detect_board, parse_board_spec
 
-__all__ = ["ImageReport", "IntrinsicsCalibration", "calibrate_intrinsics", "MIN_IMAGES"]
+__all__ = ["MIN_IMAGES", "ImageReport", "IntrinsicsCalibration", "calibrate_intrinsics"]
 
 log = logging.getLogger(__name__)
 

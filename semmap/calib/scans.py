@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError
 
-__all__ = ["read_scan_points", "ranges_to_points"]
+__all__ = ["ranges_to_points", "read_scan_points"]
 
 
 def ranges_to_points(ranges: NDArray[np.floating], angle_min: float, angle_increment: float,

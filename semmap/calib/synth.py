@@ -21,14 +21,14 @@ from .common import normalize_pixels, project
 from .pairs import PointPixelPairs
 
 __all__ = [
-    "sim_calibration_truth",
-    "sim_intrinsics",
-    "simulate_pairs",
     "SyntheticBoardView",
-    "simulate_board_views",
+    "board_poses_in_view",
     "render_board_image",
     "scan_of_segments",
-    "board_poses_in_view",
+    "sim_calibration_truth",
+    "sim_intrinsics",
+    "simulate_board_views",
+    "simulate_pairs",
 ]
 
 

@@ -50,14 +50,14 @@ from .common import normalize_pixels, project
 __all__ = [
     "BoardPlane",
     "ScanSegment",
+    "TargetCalibration",
     "TargetObservation",
     "ViewResidual",
-    "TargetCalibration",
     "board_plane",
-    "scan_segments",
-    "find_board_segments",
     "calibrate_target",
+    "find_board_segments",
     "linear_target_solution",
+    "scan_segments",
 ]
 
 log = logging.getLogger(__name__)

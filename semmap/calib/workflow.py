@@ -44,12 +44,12 @@ from .target import (
 __all__ = [
     "IMAGE_SUFFIXES",
     "SCAN_SUFFIXES",
+    "calibrate_extrinsics_file",
+    "calibrate_intrinsics_file",
+    "calibrate_target_files",
     "expand_files",
     "pair_by_stamp",
-    "calibrate_intrinsics_file",
-    "calibrate_extrinsics_file",
     "target_observations",
-    "calibrate_target_files",
 ]
 
 log = logging.getLogger(__name__)

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _build(args: argparse.Namespace, tour: Path):  # noqa: ANN202
+def _build(args: argparse.Namespace, tour: Path):
     from ..pipeline import build
 
     with progress_bar("building the map", enabled=not args.quiet) as progress:
@@ -56,7 +56,7 @@ def _build(args: argparse.Namespace, tour: Path):  # noqa: ANN202
                      progress=progress)
 
 
-def _print_summary(result) -> None:  # noqa: ANN001
+def _print_summary(result) -> None:
     from ..mapfolder.report import registration_line
 
     s = result.summary.model_dump(mode="json")

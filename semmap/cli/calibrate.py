@@ -173,7 +173,8 @@ def run_target(args: argparse.Namespace) -> int:
     st = ", ".join(f"{a} {v * 100:.1f}" for a, v in zip("xyz", r.translation_std_m))
     out.print(f"  1-sigma about LiDAR axes (deg): {sr}; along LiDAR axes (cm): {st}")
     if r.unobservable:
-        out.print(f"  [yellow]not observable from these boards, held at the prior:[/yellow] {', '.join(r.unobservable)}")
+        out.print("  [yellow]not observable from these boards, held at the prior:[/yellow] "
+                  f"{', '.join(r.unobservable)}")
     for line in _fmt_T("T_cam_lidar (LiDAR points into the camera)", r.T_cam_lidar):
         out.print(line)
     for line in _fmt_T("T_lidar_cam (camera points into the LiDAR; the research's T_C→L)", r.T_lidar_cam):

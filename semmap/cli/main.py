@@ -124,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{prog}: internal error {exc} (run again with --debug for the traceback, and please report it)",
               file=sys.stderr)
         return EXIT_INTERNAL
-    except Exception as exc:  # noqa: BLE001 - a bug; keep the user's terminal clean unless --debug
+    except Exception as exc:
         if args.debug:
             raise
         print(f"{prog}: internal error: {type(exc).__name__}: {exc} "

@@ -824,7 +824,7 @@ def _scans_per_cell(sightings: NDArray[np.int32], shape: tuple[int, int]
     before they were kept, whose ``views`` are the most labelled hits of one cell instead)."""
     if sightings.shape[0] == 0:
         return None
-    h, w = shape
+    _h, w = shape
     flat = sightings[:, 2].astype(np.int64) * w + sightings[:, 3]
     order = np.argsort(flat, kind="stable")
     flat, scans = flat[order], sightings[order, 0]

@@ -48,8 +48,15 @@ from ..config import GridConfig
 from ..errors import ConfigError, SemmapError
 from ..records import GridSpec, Mobility, PaintedScan
 
-__all__ = ["LOG_ODDS_STEP", "N_MOBILITY", "GridLayers", "SemanticGrid", "GridMemoryEstimate",
-           "estimate_grid_memory", "check_grid_memory"]
+__all__ = [
+    "LOG_ODDS_STEP",
+    "N_MOBILITY",
+    "GridLayers",
+    "GridMemoryEstimate",
+    "SemanticGrid",
+    "check_grid_memory",
+    "estimate_grid_memory",
+]
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..errors import OutputError, OutputExistsError
 
-__all__ = ["atomic_dir", "atomic_file", "check_output", "check_output_file", "COMMITTED"]
+__all__ = ["COMMITTED", "atomic_dir", "atomic_file", "check_output", "check_output_file"]
 
 _OWNER = ".semmap-owner"
 

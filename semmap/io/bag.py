@@ -59,22 +59,22 @@ from .ros1format import (
 )
 
 __all__ = [
-    "BagFormat",
     "BAG_FORMATS",
-    "BagWriter",
-    "TopicInfo",
+    "BagFormat",
     "BagInfo",
-    "bag_info",
-    "open_bag",
-    "read_bag",
+    "BagWriter",
     "OpenBag",
     "ReadStats",
+    "TopicInfo",
+    "bag_info",
+    "bag_suffix",
     "iter_messages",
     "iter_records",
     "message_count",
-    "topic_types",
+    "open_bag",
+    "read_bag",
     "resolve_bag_path",
-    "bag_suffix",
+    "topic_types",
 ]
 
 log = logging.getLogger(__name__)
@@ -171,7 +171,7 @@ class BagWriter:
         else:
             try:
                 self._writer.abort()
-            except Exception:  # noqa: BLE001 - already failing; keep the original error
+            except Exception:
                 log.debug("aborting bag writer failed", exc_info=True)
         self._writer = None
 
@@ -555,7 +555,7 @@ def _decompress(buf: Any, start: int, dlen: int, compression: bytes, what: str) 
         raise Damaged(f"{what} uses compression {compression.decode('latin-1')!r}, which semmap cannot read")
     try:
         return func(bytes(buf[start:start + dlen]))
-    except Exception as exc:  # noqa: BLE001 - bz2 raises OSError, lz4 RuntimeError, ...
+    except Exception as exc:
         raise Damaged(f"{what} cannot be decompressed ({compression.decode('latin-1')}: {exc})") from None
 
 
@@ -904,7 +904,7 @@ def _open_rebuilt(p: Path, why: str, trust_index: bool = True) -> Any:
     try:
         reader = AnyReader([_RebuiltBagPath(p, index)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))  # type: ignore[list-item]
         reader.open()
-    except Exception as exc:  # noqa: BLE001 - whatever rosbags raises, the user gets one line naming the file
+    except Exception as exc:
         if not index.rebuilt:  # the connection records inside the chunks may be whole where the index's are not
             log.debug("%s: cannot read it through its own index either (%r)", p, exc)
             return _open_rebuilt(p, f"reading through its own index failed: {_describe(exc)}", trust_index=False)
@@ -927,7 +927,7 @@ def _open_reader(p: Path) -> Any:
         if table is not None:
             reader.readers = [fastbag.Ros1Reader(p, table)]
         reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags lets AssertionError, struct.error... escape
+    except Exception as exc:
         if not _is_ros1(p):
             raise BagError(f"{p}: cannot open bag ({_describe(exc)})") from None
         log.debug("%s: rosbags cannot open it (%r); reading it as ROS does", p, exc)
@@ -964,7 +964,7 @@ def open_bag(path: str | Path) -> Iterator[Any]:
     finally:
         try:
             reader.close()
-        except Exception:  # noqa: BLE001 - closing a damaged bag; the reading error (if any) says more
+        except Exception:
             log.debug("closing %s failed", p, exc_info=True)
 
 
@@ -1092,7 +1092,7 @@ def bag_info(path: str | Path) -> BagInfo:
     with open_bag(p) as reader:
         try:
             names, counts, first, last = _summary(reader)
-        except Exception as exc:  # noqa: BLE001 - rosbags raises a different error per storage
+        except Exception as exc:
             failure = exc
             if not _is_ros1(p) or _rebuilt_from_chunks(reader):
                 raise _unreadable(p, exc) from None
@@ -1101,7 +1101,7 @@ def bag_info(path: str | Path) -> BagInfo:
         reader = _open_rebuilt(p, f"reading through its own index failed: {_describe(failure)}", trust_index=False)
         try:
             names, counts, first, last = _summary(reader)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             raise _unreadable(p, exc) from None
         finally:
             reader.close()
@@ -1310,7 +1310,7 @@ def _deserialize(reader: Any, p: Path, conn: Any, raw: Any, stats: ReadStats) ->
     """The message, or None (counted in ``stats.skipped``) when its bytes do not fit its type."""
     try:
         msg = reader.deserialize(raw, conn.msgtype)
-    except Exception as exc:  # noqa: BLE001 - rosbags' generated deserialisers raise many kinds of errors
+    except Exception as exc:
         stats.skipped[conn.topic] = stats.skipped.get(conn.topic, 0) + 1
         log.debug("%s: skipped a message on %s (%s)", p, conn.topic, _describe(exc))
         return None
@@ -1337,7 +1337,7 @@ def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> It
         return
     except SemmapError:
         raise
-    except Exception as exc:  # noqa: BLE001 - storage errors differ per rosbags backend
+    except Exception as exc:
         if fast and not isinstance(exc, fastbag.not_understood()):
             raise  # a bug in semmap's own reader, not a bag it cannot read: never hidden behind the fallback
         failure = exc
@@ -1358,7 +1358,7 @@ def _stream(reader: Any, p: Path, topics: Sequence[str], stats: ReadStats) -> It
                 yield conn.topic, t_ns, msg
     except SemmapError:
         raise
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         raise _unreadable(p, exc) from None
     finally:
         rebuilt.close()

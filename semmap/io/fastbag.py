@@ -56,8 +56,17 @@ from .ros1format import (
     record_at,
 )
 
-__all__ = ["TESTED_ROSBAGS", "usable", "not_understood", "Ros1Table", "Ros1Reader", "ros1_table", "reads",
-           "ros1_records", "mcap_records"]
+__all__ = [
+    "TESTED_ROSBAGS",
+    "Ros1Reader",
+    "Ros1Table",
+    "mcap_records",
+    "not_understood",
+    "reads",
+    "ros1_records",
+    "ros1_table",
+    "usable",
+]
 
 log = logging.getLogger(__name__)
 
@@ -562,10 +571,7 @@ class Ros1Reader:
     def _read(self, pos: int, n: int) -> bytes:
         from rosbags.rosbag1 import ReaderError
 
-        if self._map is not None:
-            data = self._map[pos:pos + n]
-        else:
-            data = os.pread(self.bio.fileno(), n, pos)
+        data = self._map[pos:pos + n] if self._map is not None else os.pread(self.bio.fileno(), n, pos)
         if len(data) != n:
             raise ReaderError(f"Got only {len(data)} of requested {n} bytes.")
         return data

@@ -28,8 +28,17 @@ from ..errors import ConfigError
 from ..records import GridSpec
 from .yamlio import read_yaml, write_yaml
 
-__all__ = ["OCCUPIED", "FREE", "UNKNOWN", "OCCUPIED_THRESH", "FREE_THRESH", "check_trinary_thresholds",
-           "write_map", "read_map", "MapImage"]
+__all__ = [
+    "FREE",
+    "FREE_THRESH",
+    "OCCUPIED",
+    "OCCUPIED_THRESH",
+    "UNKNOWN",
+    "MapImage",
+    "check_trinary_thresholds",
+    "read_map",
+    "write_map",
+]
 
 OCCUPIED = 0
 FREE = 254

@@ -20,16 +20,16 @@ from ..records import CameraIntrinsics, Image, Scan
 from .topics import COMPRESSED_T, IMAGE_T, INFO_T, ODOM_T, SCAN_T, TF_T
 
 __all__ = [
-    "stamp_ns",
-    "scan_from_msg",
-    "image_from_msg",
+    "LABEL_ENCODINGS",
+    "camera_info_from_msg",
     "compressed_image_from_msg",
     "decode_image",
-    "record_from_msg",
+    "image_from_msg",
     "odometry_from_msg",
+    "record_from_msg",
+    "scan_from_msg",
+    "stamp_ns",
     "transforms_from_msg",
-    "camera_info_from_msg",
-    "LABEL_ENCODINGS",
 ]
 
 log = logging.getLogger(__name__)

@@ -18,9 +18,23 @@ import struct
 from typing import Any
 
 __all__ = [
-    "MAGIC", "OP_MSG", "OP_FILE_HEADER", "OP_INDEX", "OP_CHUNK", "OP_CHUNK_INFO", "OP_CONNECTION",
-    "U32", "U64", "TIME", "Damaged", "Truncated", "header_fields", "record_at", "field_int", "record_op",
+    "MAGIC",
+    "OP_CHUNK",
+    "OP_CHUNK_INFO",
+    "OP_CONNECTION",
+    "OP_FILE_HEADER",
+    "OP_INDEX",
+    "OP_MSG",
+    "TIME",
+    "U32",
+    "U64",
+    "Damaged",
+    "Truncated",
+    "field_int",
     "file_header",
+    "header_fields",
+    "record_at",
+    "record_op",
 ]
 
 MAGIC = b"#ROSBAG V2.0\n"

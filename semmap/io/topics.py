@@ -21,8 +21,19 @@ from typing import Any, Literal, Protocol
 from ..errors import BagError
 
 __all__ = [
-    "SCAN_T", "IMAGE_T", "COMPRESSED_T", "INFO_T", "ODOM_T", "TF_T", "IMAGE_TYPES",
-    "LABEL_HINTS", "NOT_CAMERA_HINTS", "TRUTH_HINTS", "TopicSettings", "Topics", "pick_topics",
+    "COMPRESSED_T",
+    "IMAGE_T",
+    "IMAGE_TYPES",
+    "INFO_T",
+    "LABEL_HINTS",
+    "NOT_CAMERA_HINTS",
+    "ODOM_T",
+    "SCAN_T",
+    "TF_T",
+    "TRUTH_HINTS",
+    "TopicSettings",
+    "Topics",
+    "pick_topics",
 ]
 
 SCAN_T = "sensor_msgs/msg/LaserScan"

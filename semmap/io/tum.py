@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from ..errors import ConfigError
 from ..geometry import quaternion_to_yaw, yaw_to_quaternion
 
-__all__ = ["write_tum", "read_tum"]
+__all__ = ["read_tum", "write_tum"]
 
 
 def write_tum(path: str | Path, stamps_ns: NDArray[np.int64], poses: NDArray[np.float64]) -> Path:

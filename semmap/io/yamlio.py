@@ -9,7 +9,7 @@ import yaml
 
 from ..errors import ConfigError
 
-__all__ = ["dump_yaml", "write_yaml", "read_yaml"]
+__all__ = ["dump_yaml", "read_yaml", "write_yaml"]
 
 
 def read_yaml(path: str | Path, what: str = "file") -> Any:

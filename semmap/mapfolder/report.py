@@ -8,20 +8,20 @@ from typing import TYPE_CHECKING, Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Patch, Polygon  # noqa: E402
-from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Patch, Polygon
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
-from ..geometry import se2_between, se2_compose  # noqa: E402
-from ..palette import MOBILITY_COLORS, class_color  # noqa: E402
-from ..records import Mobility  # noqa: E402
+from ..geometry import se2_between, se2_compose
+from ..palette import MOBILITY_COLORS, class_color
+from ..records import Mobility
 
 if TYPE_CHECKING:
     from ..grid import CleanedMap, GridLayers
     from .writer import BuildOutcome
 
-__all__ = ["render_pictures", "write_report", "semantic_image"]
+__all__ = ["render_pictures", "semantic_image", "write_report"]
 
 _FREE = (255, 255, 255)
 _UNKNOWN = (205, 205, 205)

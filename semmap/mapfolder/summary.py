@@ -11,8 +11,19 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
-__all__ = ["BuildSummary", "TourSummary", "TourTopics", "TourFrames", "MessagesSummary", "CountsSummary",
-           "PaintingSummary", "OcclusionSummary", "MapSummary", "TimingsSummary", "ThroughputSummary"]
+__all__ = [
+    "BuildSummary",
+    "CountsSummary",
+    "MapSummary",
+    "MessagesSummary",
+    "OcclusionSummary",
+    "PaintingSummary",
+    "ThroughputSummary",
+    "TimingsSummary",
+    "TourFrames",
+    "TourSummary",
+    "TourTopics",
+]
 
 
 class _Part(BaseModel):

@@ -33,7 +33,7 @@ from ..io.yamlio import write_yaml
 from ..runtime import peak_rss_mb
 from .summary import BuildSummary
 
-__all__ = ["write_map_folder", "BuildOutcome", "MAP_FOLDER_VERSION"]
+__all__ = ["MAP_FOLDER_VERSION", "BuildOutcome", "write_map_folder"]
 
 #: the layout of the map folder; :func:`semmap.load_map` reads this version only
 MAP_FOLDER_VERSION = 1

@@ -31,7 +31,7 @@ from ..segment.frames import InProcessFrames
 from .painter import CameraView, Painter
 from .stream import ScanStream, open_build_tour, tour_class_names
 
-__all__ = ["PaintedPair", "PaintExport", "iter_painted", "export_painted", "EXPORT_COLUMNS"]
+__all__ = ["EXPORT_COLUMNS", "PaintExport", "PaintedPair", "export_painted", "iter_painted"]
 
 log = logging.getLogger(__name__)
 

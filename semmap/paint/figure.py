@@ -36,7 +36,7 @@ from ..palette import class_color
 from ..records import Image, Mobility
 from .export import PaintedPair, iter_painted
 
-__all__ = ["paint_picture", "camera_image", "FramePicker", "picture", "draw_picked", "PictureResult"]
+__all__ = ["FramePicker", "PictureResult", "camera_image", "draw_picked", "paint_picture", "picture"]
 
 log = logging.getLogger(__name__)
 

@@ -41,7 +41,7 @@ from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["Painter", "PaintResult", "PaintStats", "CameraView"]
+__all__ = ["CameraView", "PaintResult", "PaintStats", "Painter"]
 
 
 @dataclass

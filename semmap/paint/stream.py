@@ -48,7 +48,7 @@ from ..segment.frames import FrameSource
 from .motion import OdomTrack
 from .painter import Painter
 
-__all__ = ["ScanStream", "PairedScan", "StreamCounts", "open_build_tour", "tour_class_names"]
+__all__ = ["PairedScan", "ScanStream", "StreamCounts", "open_build_tour", "tour_class_names"]
 
 ProgressFn = Callable[[int, int], None]
 

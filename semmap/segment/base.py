@@ -40,8 +40,15 @@ from ..config import SEGMENTATION_BACKENDS, ModelSegmentationConfig, Segmentatio
 from ..errors import ConfigError
 from ..records import Image, Segmentation
 
-__all__ = ["Segmenter", "SEGMENTERS", "CONSUMES", "register", "create_segmenter", "backend_consumes",
-           "available_backends"]
+__all__ = [
+    "CONSUMES",
+    "SEGMENTERS",
+    "Segmenter",
+    "available_backends",
+    "backend_consumes",
+    "create_segmenter",
+    "register",
+]
 
 
 @runtime_checkable

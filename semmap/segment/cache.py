@@ -17,6 +17,7 @@ replaced. Entries are ``.npz`` files read with ``allow_pickle=False``.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -57,10 +58,8 @@ def _weights_digest(path: Path, cache_root: Path) -> str:
         return str(memo[key])
     digest = file_digest(p)
     memo[key] = digest
-    try:
+    with contextlib.suppress(OSError):
         _atomic_write_text(memo_file, json.dumps(memo, indent=1))
-    except OSError:
-        pass
     return digest
 
 

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from ..errors import ConfigError, SemmapError
 from ..records import Image
 
-__all__ = ["rgb_array", "compose_instances", "parse_names", "require_model", "default_data_dir", "file_digest"]
+__all__ = ["compose_instances", "default_data_dir", "file_digest", "parse_names", "require_model", "rgb_array"]
 
 
 def rgb_array(image: Image, backend: str) -> NDArray[np.uint8]:

@@ -47,8 +47,16 @@ from ..errors import ConfigError, SemmapError
 from ..records import Image
 from .base import create_segmenter
 
-__all__ = ["SegDataset", "load_dataset", "rasterize_polygons", "ClassScore", "BackendScore", "EvalResult",
-           "evaluate_segmentation", "write_eval_outputs"]
+__all__ = [
+    "BackendScore",
+    "ClassScore",
+    "EvalResult",
+    "SegDataset",
+    "evaluate_segmentation",
+    "load_dataset",
+    "rasterize_polygons",
+    "write_eval_outputs",
+]
 
 log = logging.getLogger(__name__)
 

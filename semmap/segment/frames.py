@@ -20,7 +20,7 @@ from ..errors import SemmapError
 from ..records import Image, Segmentation
 from .base import Segmenter
 
-__all__ = ["FrameSource", "FrameReader", "InProcessFrames"]
+__all__ = ["FrameReader", "FrameSource", "InProcessFrames"]
 
 log = logging.getLogger(__name__)
 

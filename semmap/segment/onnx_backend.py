@@ -83,7 +83,7 @@ class OnnxSegmenter:
         try:
             self._session = ort.InferenceSession(str(self.path), so,
                                                  providers=_providers(self.cfg.device, ort.get_available_providers()))
-        except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own types for bad files
+        except Exception as exc:
             if isinstance(exc, ConfigError):
                 raise
             raise ConfigError(f"segmentation.model: {self.path}: not a loadable ONNX model ({exc})") from None

@@ -39,7 +39,7 @@ from .base import backend_consumes, create_segmenter
 if TYPE_CHECKING:
     from ..io.bag import OpenBag
 
-__all__ = ["SegmentResult", "segment_source", "iter_image_folder", "draw_overlay"]
+__all__ = ["SegmentResult", "draw_overlay", "iter_image_folder", "segment_source"]
 
 log = logging.getLogger(__name__)
 

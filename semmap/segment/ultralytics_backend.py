@@ -44,13 +44,13 @@ class UltralyticsSegmenter:
         if self._model is None:
             try:
                 from ultralytics import YOLO
-            except Exception as exc:  # noqa: BLE001 - ImportError, or torchvision failing to load
+            except Exception as exc:
                 raise ConfigError(f"segmentation.backend 'ultralytics' cannot import ultralytics "
                                   f"({type(exc).__name__}: {exc}); pip install ultralytics with a matching "
                                   f"torchvision") from None
             try:
                 self._model = YOLO(str(self.path), task="segment")
-            except Exception as exc:  # noqa: BLE001 - Ultralytics raises many types for bad files
+            except Exception as exc:
                 raise ConfigError(f"segmentation.model: {self.path}: Ultralytics cannot load it ({exc})") from None
         return self._model
 

@@ -21,8 +21,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Letterbox", "letterbox", "nms", "Detections", "decode_detections", "instance_masks",
-           "yolo_seg_postprocess"]
+__all__ = [
+    "Detections",
+    "Letterbox",
+    "decode_detections",
+    "instance_masks",
+    "letterbox",
+    "nms",
+    "yolo_seg_postprocess",
+]
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,17 @@ from numpy.typing import NDArray
 from ..records import GridSpec, Mobility
 from .world import Person, World
 
-__all__ = ["grid_for_world", "rasterise", "occupancy_layers", "people_swept", "standing_stretches",
-           "people_standing", "object_cells", "change_mask", "true_beam_end_points"]
+__all__ = [
+    "change_mask",
+    "grid_for_world",
+    "object_cells",
+    "occupancy_layers",
+    "people_standing",
+    "people_swept",
+    "rasterise",
+    "standing_stretches",
+    "true_beam_end_points",
+]
 
 #: a person counts as standing when still for at least this long, s
 MIN_STANDING_S = 5.0

@@ -2,24 +2,24 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Patch
+from numpy.typing import NDArray
 
-from ..geometry import project_points, se2_compose, se3_apply  # noqa: E402
-from ..palette import MOBILITY_COLORS, class_color  # noqa: E402
-from ..records import Calibration, GridSpec, Mobility  # noqa: E402
-from .robot import OdometryTrace, Trajectory  # noqa: E402
-from .world import World  # noqa: E402
+from ..geometry import project_points, se2_compose, se3_apply
+from ..palette import MOBILITY_COLORS, class_color
+from ..records import Calibration, GridSpec, Mobility
+from .robot import OdometryTrace, Trajectory
+from .world import World
 
-__all__ = ["world_preview", "camera_preview"]
+__all__ = ["camera_preview", "world_preview"]
 
 
 def world_preview(path: Path, world: World, spec: GridSpec, layers: dict[str, NDArray[np.bool_]],

@@ -57,7 +57,7 @@ from .world import (
     table,
 )
 
-__all__ = ["random_world", "scenario_seed", "person_role", "PERSON_ROLES", "SCENARIO_PREFIX"]
+__all__ = ["PERSON_ROLES", "SCENARIO_PREFIX", "person_role", "random_world", "scenario_seed"]
 
 log = logging.getLogger(__name__)
 
@@ -713,7 +713,7 @@ def _chairs_around(rng: np.random.Generator, pl: _Placer, room: _Room, tab: Worl
             slots.append((np.array([side * (w / 2 + 0.23 + rng.uniform(0.06, 0.14)), 0.0]), 2 * side))
     rng.shuffle(slots)
     n = 0
-    for local, side in slots:
+    for local, _side in slots:
         if n >= n_max:
             break
         p = centre + rot @ local
@@ -851,7 +851,7 @@ def _table_group(rng: np.random.Generator, pl: _Placer, room: _Room, against_wal
 
 def _furnish_dining(rng: np.random.Generator, pl: _Placer, room: _Room) -> None:
     ids = pl.b.ids
-    for k in range(1 + int(room.area > 22 and rng.random() < 0.6)):
+    for _ in range(1 + int(room.area > 22 and rng.random() < 0.6)):
         _table_group(rng, pl, room, against_wall=rng.random() < 0.4)
     if rng.random() < 0.75:  # a counter: a long table against a wall, with a stool or two
         cw, cd = float(rng.uniform(*COUNTER_W_M)), float(rng.uniform(*COUNTER_D_M))
@@ -881,7 +881,7 @@ def _furnish_office(rng: np.random.Generator, pl: _Placer, room: _Room) -> None:
     ids = pl.b.ids
     for _ in range(1 + int(room.area > 12) + int(room.area > 22)):
         dw, dd = float(rng.uniform(1.2, 1.6)), float(rng.uniform(0.7, 0.8))
-        desk = _against(rng, pl, room, lambda pose: table(ids(), pose, dw, dd), dw, dd)
+        desk = _against(rng, pl, room, lambda pose, dw=dw, dd=dd: table(ids(), pose, dw, dd), dw, dd)
         if desk is None:
             continue
         yaw = _yaw_from_table(desk)

@@ -23,7 +23,7 @@ from ..errors import SimulationError
 from ..geometry import se2_between, se2_compose, wrap_angle
 from .world import Person, World
 
-__all__ = ["Trajectory", "plan_tour", "check_clearance", "simulate_odometry", "OdometryTrace"]
+__all__ = ["OdometryTrace", "Trajectory", "check_clearance", "plan_tour", "simulate_odometry"]
 
 _DS = 0.01  # path sampling step, m
 

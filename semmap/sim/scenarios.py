@@ -35,7 +35,7 @@ from .world import (
     wall,
 )
 
-__all__ = ["Scenario", "SCENARIOS", "get_scenario", "IdCounter", "walls_with_doors"]
+__all__ = ["SCENARIOS", "IdCounter", "Scenario", "get_scenario", "walls_with_doors"]
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,8 @@ class IdCounter:
         return self.n
 
 
-def walls_with_doors(ids: IdCounter, segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
+def walls_with_doors(ids: IdCounter,
+                     segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
            thickness: float = 0.12, height: float = 2.6) -> list[WorldObject]:
     """Straight walls with door gaps: each segment is (p0, p1, [(centre along, width), ...])."""
     out = []

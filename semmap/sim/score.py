@@ -51,16 +51,16 @@ from numpy.typing import ArrayLike, NDArray
 from ..records import GridSpec
 
 __all__ = [
+    "OBJECT_MATCH_DISTANCE",
+    "GroundTruth",
     "NaiveMap",
     "TruthObject",
-    "GroundTruth",
     "load_truth",
+    "match_objects",
     "naive_map",
     "score_map",
     "score_masks",
     "walls_flagged",
-    "match_objects",
-    "OBJECT_MATCH_DISTANCE",
 ]
 
 log = logging.getLogger(__name__)

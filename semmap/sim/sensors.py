@@ -19,7 +19,7 @@ from ..config import SimCameraConfig, SimLidarConfig
 from ..geometry import se2_compose, se3_from_xyz_rpy
 from .raycast import PartSet, first_hit, part_intervals
 
-__all__ = ["LidarSim", "LidarSweep", "CameraSim", "CameraFrame", "mount_se2"]
+__all__ = ["CameraFrame", "CameraSim", "LidarSim", "LidarSweep", "mount_se2"]
 
 
 def mount_se2(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> NDArray[np.float64]:

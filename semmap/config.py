@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 from pydantic import (
     AliasChoices,
@@ -436,12 +436,15 @@ def _backend_tag(v: Any) -> str | None:
 
 #: ``segmentation:`` of a config file: one of the built-in backends' models, picked by ``backend``, or
 #: the options model of a backend a plugin registered (:func:`register_segmentation_options`)
-AnySegmentation = Annotated[
-    Union[(*(Annotated[m, Tag(name)] for name, m in SEGMENTATION_BACKENDS.items()),  # type: ignore[valid-type]
-           Annotated[SegmentationConfig, Tag("plugin")])],
-    Discriminator(_backend_tag),
-    BeforeValidator(_one_backends_keys),
-]
+if TYPE_CHECKING:  # to a type checker, any backend's model
+    AnySegmentation = SegmentationConfig
+else:
+    AnySegmentation = Annotated[
+        Union[(*(Annotated[m, Tag(name)] for name, m in SEGMENTATION_BACKENDS.items()),
+               Annotated[SegmentationConfig, Tag("plugin")])],
+        Discriminator(_backend_tag),
+        BeforeValidator(_one_backends_keys),
+    ]
 
 
 class OcclusionConfig(_Model):

@@ -71,8 +71,8 @@ def se2_compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     if a.shape == (3,) and b.shape == (3,):  # one pose: plain floats are 10x faster than numpy ufuncs
         ax, ay, at = a.tolist()
         bx, by, bt = b.tolist()
-        c, s = math.cos(at), math.sin(at)
-        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap1(at + bt)])
+        ca, sa = math.cos(at), math.sin(at)
+        return np.array([ax + ca * bx - sa * by, ay + sa * bx + ca * by, _wrap1(at + bt)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -85,8 +85,8 @@ def se2_inverse(a: ArrayLike) -> NDArray[np.float64]:
     a = _pose_array(a)
     if a.shape == (3,):
         ax, ay, at = a.tolist()
-        c, s = math.cos(at), math.sin(at)
-        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap1(-at)])
+        ca, sa = math.cos(at), math.sin(at)
+        return np.array([-ca * ax - sa * ay, sa * ax - ca * ay, _wrap1(-at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = -c * a[..., 0] - s * a[..., 1]
     y = s * a[..., 0] - c * a[..., 1]
@@ -191,8 +191,8 @@ def quaternion_to_yaw(q_xyzw: ArrayLike) -> NDArray[np.float64] | float:
         x, y, z, w = (float(v) for v in q_xyzw)  # one quaternion (an odometry message): no arrays
         return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     q = np.asarray(q_xyzw, dtype=np.float64)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
     return float(yaw) if np.ndim(yaw) == 0 else yaw
 
 
@@ -320,7 +320,7 @@ def unproject_pixels(
 
         def pixels(x: NDArray[np.float64]) -> NDArray[np.float64]:
             obj = np.column_stack([x, np.ones(len(x))]).reshape(-1, 1, 3)
-            return proj(obj, zero, zero, k, d)[0].reshape(-1, 2)
+            return np.asarray(proj(obj, zero, zero, k, d)[0], np.float64).reshape(-1, 2)
 
         h = 1e-7
         at = pixels(xn)

@@ -6,7 +6,7 @@ import hashlib
 
 from .records import Mobility
 
-__all__ = ["MOBILITY_COLORS", "class_color"]
+__all__ = ["MOBILITY_COLORS", "class_color", "rgb01"]
 
 _FIXED: dict[str, tuple[int, int, int]] = {
     "person": (230, 25, 75),
@@ -30,6 +30,11 @@ MOBILITY_COLORS: dict[Mobility, tuple[int, int, int]] = {
     Mobility.SEMI_STATIC: (245, 130, 48),
     Mobility.DYNAMIC: (230, 25, 75),
 }
+
+
+def rgb01(color: tuple[int, int, int]) -> tuple[float, float, float]:
+    """An 8-bit RGB colour as matplotlib takes it: each channel in [0, 1]."""
+    return (color[0] / 255, color[1] / 255, color[2] / 255)
 
 
 def class_color(name: str) -> tuple[int, int, int]:

@@ -236,9 +236,9 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
                 part.wait_ready()
         return _stream(tinfo, bag, cfg, painter, frames, mapper, progress)
     finally:
-        for part in (frames, mapper):
-            if part is not None:
-                part.close()
+        for stage in (frames, mapper):
+            if stage is not None:
+                stage.close()
 
 
 def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, frames: FrameSource | None,

@@ -168,7 +168,7 @@ class Scan:
 
     @property
     def angles(self) -> NDArray[np.float64]:
-        return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
+        return self.angle_min + self.angle_increment * np.arange(self.ranges.size, dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -92,7 +92,8 @@ def _send_large(conn: Connection, obj: Any) -> None:
     conn.send(("large", type(obj), {k: v for k, v in fields.items() if k not in arrays},
                {k: (a.dtype.str, a.shape) for k, a in arrays.items()}))
     for a in arrays.values():
-        conn.send_bytes(a.reshape(-1).view(np.uint8) if a.size else b"")
+        # an ndarray is a buffer (numpy's stubs do not say so to Python 3.11's type checkers)
+        conn.send_bytes(a.reshape(-1).view(np.uint8) if a.size else b"")  # type: ignore[arg-type]
 
 
 def _recv_large(conn: Connection, cls: type, others: dict[str, Any], layout: dict[str, tuple[str, tuple[int, ...]]]
@@ -215,7 +216,7 @@ def _emit(name: str, level: int, text: str, process: str) -> None:
     """In the caller: log a record a worker sent."""
     logger = logging.getLogger(name)
     if logger.isEnabledFor(level):
-        logger.handle(logger.makeRecord(name, level, "(worker)", 0, text, None, None, extra={"worker": process}))
+        logger.handle(logger.makeRecord(name, level, "(worker)", 0, text, (), None, extra={"worker": process}))
 
 
 def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, int], out: Connection,

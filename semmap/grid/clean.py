@@ -163,7 +163,8 @@ def group_cells(mask: NDArray[np.bool_], link_cells: float) -> tuple[int, NDArra
     if not m.any():
         return 0, np.zeros(m.shape, np.int32)
     grown = cv2.dilate(m, _disk(0.5 * link_cells)) if link_cells >= 2.0 else m
-    n, lab = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
+    n, lab32 = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
+    lab = np.asarray(lab32, np.int32)
     lab[m == 0] = 0
     return n - 1, lab
 
@@ -172,7 +173,7 @@ def _distance_to(mask: NDArray[np.bool_]) -> NDArray[np.float32]:
     """Distance (cells) from every cell to the nearest set cell of ``mask`` (inf if none)."""
     if not mask.any():
         return np.full(mask.shape, np.inf, np.float32)
-    return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.asarray(cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE), np.float32)
 
 
 def _verdicts(labels: NDArray[np.int32], member: NDArray[np.bool_], n: int, s_dyn: NDArray[np.float32],
@@ -245,7 +246,9 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
         run = cv2.morphologyEx(m, cv2.MORPH_OPEN, kern, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         if not run.any():
             continue
-        n, seg, stats, _ = cv2.connectedComponentsWithStats(run.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+        n, seg32, stats, _ = cv2.connectedComponentsWithStats(run.astype(np.uint8), connectivity=8,
+                                                              ltype=cv2.CV_32S)
+        seg = np.asarray(seg32, np.int32)
         is_dyn, is_semi = _verdicts(seg, run, n - 1, s_dyn, s_semi, lab, cfg)
         labelled = np.bincount(seg[run], lab[run], n) >= cfg.min_labelled_hits
         labelled[0] = False
@@ -372,9 +375,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     # between them when seen from all around. A blob no longer than one leg is wide is two legs only
     # when it has that waist (a post or a bin that size is round)
     for b in np.flatnonzero((w >= lo) & (w <= s_hi + hi) & ~veto & ~person):
-        if not alone(xy[b], (b,)):
+        if not alone(xy[b], (int(b),)):
             continue
-        pts = np.column_stack(np.nonzero(lab == b))[:, ::-1] * res
+        pts = np.asarray(np.column_stack(np.nonzero(lab == b))[:, ::-1] * res, np.float64)
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         if w[b] <= hi:
             # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
@@ -437,7 +440,7 @@ def nearest_value(mask: NDArray[np.bool_],
                                                 labelType=cv2.DIST_LABEL_PIXEL)
     # DIST_LABEL_PIXEL numbers the zero pixels (the mask's cells) 1, 2, ... in raster order
     order = values.reshape(-1)[np.flatnonzero(mask.reshape(-1))]
-    return dist, order[np.maximum(idx, 1) - 1]
+    return np.asarray(dist, np.float32), order[np.maximum(idx, 1) - 1]
 
 
 #: cells kept around the observed area when cleaning works on a crop of the grid's window
@@ -653,7 +656,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     objects = _objects(semi_static, layers, names, cfg.object_link_distance / res)
     log.info("cleaned map: %d occupied cells, %d dropped as dynamic, %d semi-static in %d objects",
              int(occupied.sum()), int(dropped.sum()), int(semi_static.sum()), len(objects))
-    return CleanedMap(spec, occupied, free, unknown, semi_static, dropped, objects)
+    return CleanedMap(spec, occupied, free, unknown, semi_static, dropped, tuple(objects))
 
 
 def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],

@@ -38,7 +38,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -69,7 +69,10 @@ _KERNEL3 = np.ones((3, 3), np.uint8)
 LOG_ODDS_STEP = 1e-3  #: the resolution log-odds are kept at (l_occ, l_free and the clamps are rounded to it)
 
 
-def _frozen(a: NDArray[np.generic]) -> NDArray[np.generic]:
+_A = TypeVar("_A", bound=np.ndarray)
+
+
+def _frozen(a: _A) -> _A:
     a.setflags(write=False)
     return a
 
@@ -302,7 +305,7 @@ class SemanticGrid:
         free_len = np.where(hit, rng - cfg.hit_free_margin, rng)
         np.minimum(np.maximum(free_len, 0.0, out=free_len), cfg.max_range, out=free_len)
         k = int(cfg.dropout_guard)
-        gaps = np.flatnonzero(~hit & ok) if k > 0 else ()
+        gaps = np.flatnonzero(~hit & ok) if k > 0 else np.zeros(0, np.intp)
         if len(gaps) and len(gaps) < rng.size:
             n = rng.size
             near = np.where(hit, rng, np.inf)
@@ -343,6 +346,7 @@ class SemanticGrid:
         # hit cells (clipped: a float can round onto the window's far edge)
         hc = np.minimum(np.maximum(((hx - gx) / res).astype(np.intp), c0), c1 - 1)
         hr = np.minimum(np.maximum(((hy - gy) / res).astype(np.intp), r0), r1 - 1)
+        assert scan.instance is not None  # PaintedScan fills it in
         inst = scan.instance[hit]
         on = inst >= 0
         if on.any():  # which cells the camera saw as one object in this scan (the object list's evidence)
@@ -381,7 +385,7 @@ class SemanticGrid:
         if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
             np.add(fr, scratch, out=fr, casting="unsafe")
         else:
-            cv2.add(fr, 1, dst=fr, mask=scratch)
+            cv2.add(fr, 1, dst=fr, mask=scratch)  # type: ignore[call-overload]  # cv2's stubs: no scalar src2
 
         if hr.size:
             # one sorted key per (cell, evidence code): codes 0-3 mobility, 4+ class layer

@@ -745,10 +745,10 @@ def _view_parts(index: _Ros1Index) -> list[bytes | tuple[int, int]]:
         tail += _record_bytes([(b"op", bytes([OP_CHUNK_INFO])), (b"ver", U32.pack(1)), (b"chunk_pos", U64.pack(pos)),
                                (b"start_time", _time_bytes(min(times))), (b"end_time", _time_bytes(max(times))),
                                (b"count", U32.pack(len(chunk.entries)))], pairs)
-    header = _record_bytes([(b"op", bytes([OP_FILE_HEADER])), (b"index_pos", U64.pack(at)),
-                            (b"conn_count", U32.pack(len(index.connections))),
-                            (b"chunk_count", U32.pack(len(index.chunks)))], b"")
-    return [MAGIC + header, *chunk_part, bytes(tail)]
+    file_header = _record_bytes([(b"op", bytes([OP_FILE_HEADER])), (b"index_pos", U64.pack(at)),
+                                 (b"conn_count", U32.pack(len(index.connections))),
+                                 (b"chunk_count", U32.pack(len(index.chunks)))], b"")
+    return [MAGIC + file_header, *chunk_part, bytes(tail)]
 
 
 class _SplicedFile(io.RawIOBase):
@@ -925,7 +925,7 @@ def _open_reader(p: Path) -> Any:
     try:
         reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         if table is not None:
-            reader.readers = [fastbag.Ros1Reader(p, table)]
+            reader.readers = [fastbag.Ros1Reader(p, table)]  # type: ignore[assignment]  # duck-typed
         reader.open()
     except Exception as exc:
         if not _is_ros1(p):
@@ -1054,7 +1054,7 @@ def _size(p: Path) -> int:
 
 def _rebuilt_from_chunks(reader: Any) -> bool:
     """Whether ``reader`` reads a ROS1 bag through an index rebuilt from its chunks."""
-    paths = getattr(reader, "paths", ())
+    paths: Sequence[Any] = getattr(reader, "paths", ())
     return bool(paths) and isinstance(paths[0], _RebuiltBagPath) and paths[0].rebuilt
 
 

@@ -903,5 +903,5 @@ def mcap_records(reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Any, int, 
 
 def reads(reader: Any) -> bool:
     """Whether ``reader`` (rosbags' ``AnyReader``) reads its bag through :class:`Ros1Reader`."""
-    own = getattr(reader, "readers", None)
-    return bool(own) and len(own) == 1 and isinstance(own[0], Ros1Reader)
+    own: Sequence[Any] = getattr(reader, "readers", None) or ()
+    return len(own) == 1 and isinstance(own[0], Ros1Reader)

@@ -53,18 +53,26 @@ TRUTH_HINTS = ("ground_truth", "groundtruth", "gt", "truth", "mocap", "vicon")
 
 Kind = Literal["scan", "odometry", "frames", "camera_info"]
 _ALL_KINDS: tuple[Kind, ...] = ("scan", "odometry", "frames", "camera_info")
+_SCAN_ONLY: tuple[Kind, ...] = ("scan",)
 
 
 class TopicSettings(Protocol):
     """The topic names a user set (the config's ``topics:``); None: detect it from the bag."""
 
-    scan: str | None
-    image: str | None
-    labels: str | None
-    camera_info: str | None
-    odometry: str | None
-    tf: str
-    tf_static: str
+    @property
+    def scan(self) -> str | None: ...
+    @property
+    def image(self) -> str | None: ...
+    @property
+    def labels(self) -> str | None: ...
+    @property
+    def camera_info(self) -> str | None: ...
+    @property
+    def odometry(self) -> str | None: ...
+    @property
+    def tf(self) -> str: ...
+    @property
+    def tf_static(self) -> str: ...
 
 
 @dataclass(frozen=True)
@@ -104,7 +112,7 @@ def _pick(kind: str, wanted: str | None, candidates: list[str], types: Mapping[s
 
 def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | Path, consumes: str,
                 manifest: Mapping[str, Any] | None = None, *, kinds: Collection[Kind] = _ALL_KINDS,
-                required: Collection[Kind] = ("scan",), options: Mapping[str, str] | None = None) -> Topics:
+                required: Collection[Kind] = _SCAN_ONLY, options: Mapping[str, str] | None = None) -> Topics:
     """The topics to read from a bag whose topics have the message ``types``.
 
     ``settings``: the names the user set; a topic not set is taken from the tour folder's

@@ -10,11 +10,12 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.patches import Patch, Polygon
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from ..geometry import se2_between, se2_compose
-from ..palette import MOBILITY_COLORS, class_color
+from ..palette import MOBILITY_COLORS, class_color, rgb01
 from ..records import Mobility
 
 if TYPE_CHECKING:
@@ -90,7 +91,7 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
         if len(o.footprint) >= 3:
             ax.add_patch(Polygon(np.asarray(o.footprint), closed=True, fill=False, lw=0.7, ls="--",
                                  edgecolor=_OUTLINE))
-    handles = [Patch(facecolor=np.array(c) / 255, edgecolor="0.6", label=k) for k, c in legend.items()]
+    handles: list[Artist] = [Patch(facecolor=rgb01(c), edgecolor="0.6", label=k) for k, c in legend.items()]
     handles.append(plt.Line2D([], [], color="#1f5fbf", label="robot path"))
     if cleaned.objects:
         handles.append(Patch(fill=False, ls="--", lw=0.7, edgecolor=_OUTLINE, label="movable object"))

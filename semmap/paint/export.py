@@ -134,7 +134,7 @@ def _beam_rows(pair: PaintedPair) -> dict[str, NDArray[Any]]:
         "mobility_raw": pair.raw.mobility,
         "class": pair.filtered.class_id,
         "mobility": pair.filtered.mobility,
-        "object": pair.filtered.instance,
+        "object": np.asarray(pair.filtered.instance, np.int32),
     }
 
 
@@ -194,7 +194,7 @@ def export_painted(
         if scans == 0:
             raise BagError(f"{tour}: no usable scans")
         if fmt == "npz":
-            data = {k: np.concatenate(v) for k, v in cols.items()}
+            data: dict[str, Any] = {k: np.concatenate(v) for k, v in cols.items()}
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, **data, class_names=np.asarray(names if names else ("",), dtype=str))
         tmp.replace(out)

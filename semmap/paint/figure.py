@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError, SemmapError
-from ..palette import class_color
+from ..palette import class_color, rgb01
 from ..records import Image, Mobility
 from .export import PaintedPair, iter_painted
 
@@ -281,15 +281,15 @@ def paint_picture(pair: PaintedPair, out_png: str | Path, image: Image | NDArray
         ax.title.set_fontsize(11)
     # legends below the panels, never over the points
     if present:
-        axes[0].legend(handles=[Patch(color=np.array(class_color(names[v - 1])) / 255, label=names[v - 1])
+        axes[0].legend(handles=[Patch(color=rgb01(class_color(names[v - 1])), label=names[v - 1])
                                 for v in present], loc="upper center", bbox_to_anchor=(0.5, -0.02),
                        ncol=min(len(present), 5), fontsize=10, frameon=False)
-    handles = [Line2D([], [], ls="", marker="o", markersize=8, markerfacecolor=np.array(POINT_COLORS[m]) / 255,
+    handles = [Line2D([], [], ls="", marker="o", markersize=8, markerfacecolor=rgb01(POINT_COLORS[m]),
                       markeredgecolor="black", label=m.label.replace("_", "-")) for m in
                (Mobility.DYNAMIC, Mobility.SEMI_STATIC, Mobility.STATIC)]
     handles.append(Line2D([], [], ls="", marker="o", markersize=8, markerfacecolor="none", markeredgecolor="black",
                           label="unknown"))
-    handles.append(Line2D([], [], ls="", marker="o", markersize=14, markerfacecolor=np.array(_HALO) / 255,
+    handles.append(Line2D([], [], ls="", marker="o", markersize=14, markerfacecolor=rgb01(_HALO),
                           markeredgecolor="none", label="relabelled by the filter"))
     if t_mob is not None:
         handles.append(Line2D([], [], ls="", marker="x", markersize=8, color="black", markeredgewidth=0.9,

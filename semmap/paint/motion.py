@@ -60,7 +60,7 @@ class OdomTrack:
         if len(self._t) < 2:
             return None
         scalar = np.ndim(t_ns) == 0
-        stamps = [int(t_ns)] if scalar else [int(v) for v in t_ns]
+        stamps = [int(t_ns)] if scalar else [int(v) for v in np.asarray(t_ns).reshape(-1)]
         t, f = self._t, self._f
         out = np.empty((len(stamps), 3))
         for i, tq in enumerate(stamps):

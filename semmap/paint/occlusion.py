@@ -61,6 +61,7 @@ labelled points) comparison per scan.
 from __future__ import annotations
 
 import weakref
+from typing import cast
 
 import cv2
 import numpy as np
@@ -73,8 +74,8 @@ __all__ = ["OcclusionConfig", "hidden_points", "mask_regions"]
 
 
 def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDArray[np.intp],
-                  uv: NDArray[np.float64], targets: NDArray[np.bool_], footprint: NDArray[np.float64],
-                  label_image: NDArray[np.integer], p: OcclusionConfig,
+                  uv: NDArray[np.float64] | NDArray[np.integer], targets: NDArray[np.bool_],
+                  footprint: NDArray[np.float64], label_image: NDArray[np.integer], p: OcclusionConfig,
                   extent: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
     """Which points are hidden from the camera by nearer points of the same mask.
 
@@ -274,7 +275,7 @@ class _Regions:
                 r, c = int(row[i]), int(col[i])
                 if self.filled[r + 1, c + 1] == 0:  # not filled by an earlier pixel of this call
                     if self.n == 255:
-                        self.all = cv2.connectedComponents(self.mask, connectivity=8)[1]
+                        self.all = np.asarray(cv2.connectedComponents(self.mask, connectivity=8)[1], np.int32)
                         return self.all[row, col]
                     self.n += 1
                     cv2.floodFill(self.mask, self.filled, (c, r), 1, 0, 0, self._FLAGS | (self.n << 8))
@@ -287,11 +288,14 @@ class _Components:
 
     _last: tuple[weakref.ReferenceType, dict[int, _Regions]] | None = None
 
-    def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64], labels: NDArray[np.intp]) -> None:
+    def __init__(self, label_image: NDArray[np.integer], uv: NDArray[np.float64] | NDArray[np.integer],
+                 labels: NDArray[np.intp]) -> None:
         self.image = label_image
         h, w = label_image.shape
+        self.col: NDArray[np.intp]
+        self.row: NDArray[np.intp]
         if uv.dtype.kind in "iu":  # whole pixels, clamped to the image already (the painter's)
-            self.col, self.row = uv[:, 0], uv[:, 1]
+            self.col, self.row = cast(NDArray[np.intp], uv[:, 0]), cast(NDArray[np.intp], uv[:, 1])
         else:
             self.col = np.minimum(np.maximum(np.rint(uv[:, 0]).astype(np.intp), 0), w - 1)
             self.row = np.minimum(np.maximum(np.rint(uv[:, 1]).astype(np.intp), 0), h - 1)

@@ -63,8 +63,10 @@ def _residual(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.floa
 def _make_filter() -> Any:
     from filterpy.kalman import ExtendedKalmanFilter
 
-    class _Se2Filter(ExtendedKalmanFilter):  # type: ignore[misc]
+    class _Se2Filter(ExtendedKalmanFilter):
         """filterpy's EKF with the SE(2) motion model ``x ⊕ u`` as its state transition."""
+
+        x: NDArray[np.float64]
 
         def predict_x(self, u: Any = 0) -> None:
             self.x = se2_compose(self.x.reshape(3), np.asarray(u, dtype=np.float64).reshape(3)).reshape(3, 1)

@@ -185,7 +185,7 @@ class Registrar:
 
         use_odom = self._ekf is not None and odom is not None and self._last_odom is not None
         if use_odom:
-            assert self._ekf is not None and self._last_odom is not None
+            assert self._ekf is not None and self._last_odom is not None and odom is not None
             self._ekf.predict(se2_between(self._last_odom, odom))
             guess = self._ekf.pose
         else:

@@ -55,12 +55,17 @@ __all__ = [
 class Segmenter(Protocol):
     """What every segmentation backend provides."""
 
-    #: the backend's registry name
-    name: str
-    #: class names of the label values it returns (value k is names[k-1])
-    names: tuple[str, ...]
-    #: which image stream it needs
-    consumes: Literal["rgb", "labels"]
+    @property
+    def name(self) -> str:
+        """The backend's registry name."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Class names of the label values it returns (value k is names[k-1])."""
+
+    @property
+    def consumes(self) -> str:
+        """Which image stream it needs: ``"rgb"`` or ``"labels"``."""
 
     def segment(self, image: Image) -> Segmentation:
         """Segment one image (an RGB frame, or a recorded label image for ``consumes == "labels"``)."""

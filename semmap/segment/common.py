@@ -10,7 +10,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,7 +25,7 @@ def rgb_array(image: Image, backend: str) -> NDArray[np.uint8]:
     """The image as (H, W, 3) ``uint8`` RGB; grey images are repeated into three channels."""
     a = image.data
     if image.encoding == "rgb8" and a.ndim == 3 and a.shape[2] == 3 and a.dtype == np.uint8:
-        return a
+        return cast(NDArray[np.uint8], a)
     if image.encoding in ("mono8", "8UC1") and a.ndim == 2 and a.dtype == np.uint8:
         return np.repeat(a[:, :, None], 3, axis=2)
     raise SemmapError(f"{backend}: needs rgb8 camera images, got {image.encoding!r} with shape {a.shape}")

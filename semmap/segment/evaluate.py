@@ -245,9 +245,10 @@ def _score_backend(ds: SegDataset, cfg: SegmentationConfig, label: str, progress
     for c in known:
         if not image_ious[c]:
             continue
-        i, u, p, g, fpi, fpp = (int(v) for v in acc[c])
+        i, u, n_pred, n_true, fpi, fpp = (int(v) for v in acc[c])
         classes.append(ClassScore(ds.names[c], len(image_ious[c]), i / u if u else 1.0,
-                                  2 * i / (p + g) if p + g else 1.0, fpi, i / (u + fpp) if u + fpp else 1.0,
+                                  2 * i / (n_pred + n_true) if n_pred + n_true else 1.0, fpi,
+                                  i / (u + fpp) if u + fpp else 1.0,
                                   float(np.mean(image_ious[c]))))
     nan = float("nan")
     miou = float(np.mean([c.iou for c in classes])) if classes else nan
@@ -313,14 +314,14 @@ def _chart(result: EvalResult, path: Path, title: str) -> None:
     classes.sort(key=lambda n: -weight[n])
     fig = plt.figure(figsize=(max(9.0, 0.22 * len(classes) * max(len(bs), 1) + 4), 7.5), dpi=110)
     gs = fig.add_gridspec(2, 3, height_ratios=[1, 1.3], hspace=0.55, wspace=0.35)
-    colors = plt.get_cmap("tab10").colors
+    colors = plt.get_cmap("tab10").colors  # type: ignore[attr-defined]  # a ListedColormap
     x = np.arange(len(bs))
     for k, (attr, lab) in enumerate((("miou", "mIoU"), ("mdice", "mDice"), ("fps", "FPS (images/s)"))):
         ax = fig.add_subplot(gs[0, k])
         vals = [getattr(b, attr) for b in bs]
         ax.bar(x, vals, color=[colors[i % 10] for i in range(len(bs))])
         for xi, v in zip(x, vals):
-            ax.text(xi, v, f"{v:.2f}" if attr != "fps" else f"{v:.1f}", ha="center", va="bottom", fontsize=8)
+            ax.text(float(xi), v, f"{v:.2f}" if attr != "fps" else f"{v:.1f}", ha="center", va="bottom", fontsize=8)
         ax.set_xticks(x, [b.label for b in bs], rotation=20, ha="right", fontsize=8)
         ax.set_title(lab, fontsize=10)
         if attr != "fps":

@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -69,7 +69,7 @@ class FrameReader:
 
     @staticmethod
     def _frames(images: Iterator[tuple[str, int, Image]], topic: str, segmenter: Segmenter,
-                counts: dict[str, int]) -> Iterator[Segmentation]:
+                counts: dict[str, int]) -> Generator[Segmentation, None, None]:
         for _, _, img in images:
             t0 = time.perf_counter()
             try:

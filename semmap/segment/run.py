@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from ..config import SegmentationConfig
 from ..errors import BagError, ConfigError, SemmapError
+from ..io.topics import Kind
 from ..palette import class_color
 from ..records import Image, Segmentation
 from .base import backend_consumes, create_segmenter
@@ -62,6 +63,9 @@ class SegmentResult:
     @property
     def fps(self) -> float:
         return self.frames / self.seconds if self.seconds else 0.0
+
+
+_FRAMES: tuple[Kind, ...] = ("frames",)
 
 
 def iter_image_folder(folder: Path) -> Iterator[tuple[str, Image]]:
@@ -111,7 +115,7 @@ def _pick_topic(src: OpenBag, source: Path, wanted: str | None, consumes: str) -
 
     manifest = read_tour_manifest(source)[2]
     settings = TopicsConfig.model_validate({"labels" if consumes == "labels" else "image": wanted})
-    topics = pick_topics(src.types, settings, src.path, consumes, manifest, kinds=("frames",), required=("frames",),
+    topics = pick_topics(src.types, settings, src.path, consumes, manifest, kinds=_FRAMES, required=_FRAMES,
                          options={"image": "--topic", "labels": "--topic"})
     assert topics.frames is not None  # required
     return topics.frames
@@ -139,9 +143,9 @@ def draw_overlay(image: Image, seg: Segmentation, alpha: float = 0.5) -> NDArray
         lut[k] = class_color(n)
     lab = seg.label
     on = lab > 0
-    out = base.copy()
-    out[on] = (1 - alpha) * base[on] + alpha * lut[lab[on]]
-    out = out.clip(0, 255).astype(np.uint8)
+    mixed = base.copy()
+    mixed[on] = (1 - alpha) * base[on] + alpha * lut[lab[on]]
+    out = mixed.clip(0, 255).astype(np.uint8)
     edges = cv2.morphologyEx(lab, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
     out[edges & on] = lut[lab[edges & on]].astype(np.uint8)
     present = [int(v) for v in np.unique(lab) if v > 0]

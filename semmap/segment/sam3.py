@@ -178,7 +178,7 @@ class Sam3Segmenter:
         self._set_resolution(self._side)
         # text embeddings: once per prompt, for the whole run
         max_len = int(model.config.text_config.max_position_embeddings)
-        self._text: list[tuple[Any, Any]] = []
+        self._text: list[tuple[Any, Any, Any]] = []  # per prompt: text features, attention mask, token ids
         with torch.inference_mode():
             for prompt in self.names:
                 tok = tokenizer(prompt, padding="max_length", max_length=max_len, truncation=True,

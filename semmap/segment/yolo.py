@@ -56,7 +56,7 @@ def letterbox(rgb: NDArray[np.uint8], input_hw: tuple[int, int], color: int = 11
     dh, dw = (ih - nh) / 2, (iw - nw) / 2
     top, left = int(round(dh - 0.1)), int(round(dw - 0.1))
     if (nh, nw) != (h, w):
-        rgb = cv2.resize(rgb, (nw, nh), interpolation=cv2.INTER_LINEAR)
+        rgb = np.asarray(cv2.resize(rgb, (nw, nh), interpolation=cv2.INTER_LINEAR), np.uint8)
     canvas = np.full((ih, iw, 3), color, np.uint8)
     canvas[top:top + nh, left:left + nw] = rgb
     x = canvas.transpose(2, 0, 1)[None].astype(np.float32) * np.float32(1 / 255)

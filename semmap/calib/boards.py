@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import cv2
 import numpy as np
@@ -85,12 +85,14 @@ class BoardSpec:
         return f"{self.kind}:{self.cols}x{self.rows}:{self.square_m:g}:{self.marker_m:g}:{self.dictionary}{extra}"
 
     # -- OpenCV objects ------------------------------------------------------------------
-    def _cv_board(self) -> cv2.aruco.Board:
+    def _cv_charuco(self) -> cv2.aruco.CharucoBoard:
         d = cv2.aruco.getPredefinedDictionary(_dictionary_id(self.dictionary))
-        if self.kind == "charuco":
-            b = cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
-            b.setLegacyPattern(self.legacy)
-            return b
+        b = cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
+        b.setLegacyPattern(self.legacy)
+        return b
+
+    def _cv_grid(self) -> cv2.aruco.GridBoard:
+        d = cv2.aruco.getPredefinedDictionary(_dictionary_id(self.dictionary))
         return cv2.aruco.GridBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
 
     def object_points(self) -> NDArray[np.float64]:
@@ -100,8 +102,8 @@ class BoardSpec:
             return np.column_stack([i.ravel() * self.square_m, j.ravel() * self.square_m,
                                     np.zeros(i.size)])
         if self.kind == "charuco":
-            return np.asarray(self._cv_board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
-        return np.asarray(self._cv_board().getObjPoints(), dtype=np.float64).reshape(-1, 3)
+            return np.asarray(self._cv_charuco().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+        return np.asarray(self._cv_grid().getObjPoints(), dtype=np.float64).reshape(-1, 3)
 
     @property
     def size_m(self) -> tuple[float, float]:
@@ -165,10 +167,11 @@ class BoardDetection:
 def _gray(image: NDArray[np.generic]) -> NDArray[np.uint8]:
     a = np.asarray(image)
     if a.dtype != np.uint8:
-        a = cv2.normalize(a, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        # cv2's stubs do not allow dst=None, which OpenCV takes as "allocate the output"
+        a = cv2.normalize(a, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if a.ndim == 3:
         a = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    return a
+    return cast("NDArray[np.uint8]", a)  # uint8 in, uint8 out: cv2's stubs carry no dtype
 
 
 def detect_board(image: NDArray[np.generic], board: BoardSpec) -> BoardDetection | None:
@@ -186,29 +189,29 @@ def detect_board(image: NDArray[np.generic], board: BoardSpec) -> BoardDetection
             corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1),
                                        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
         return BoardDetection(board.object_points(), corners.reshape(-1, 2).astype(np.float64))
-    cvb = board._cv_board()
     if board.kind == "charuco":
-        det = cv2.aruco.CharucoDetector(cvb)
-        cc, ci, _, _ = det.detectBoard(gray)
+        charuco = board._cv_charuco()
+        cc, ci, _, _ = cv2.aruco.CharucoDetector(charuco).detectBoard(gray)
         if ci is None or len(ci) < board.min_points:
             return None
         ids = ci.ravel().astype(np.int32)
-        if cvb.checkCharucoCornersCollinear(ci):
+        if charuco.checkCharucoCornersCollinear(ci):
             return None
-        obj = np.asarray(cvb.getChessboardCorners(), dtype=np.float64)[ids]
+        obj = np.asarray(charuco.getChessboardCorners(), dtype=np.float64)[ids]
         return BoardDetection(obj, cc.reshape(-1, 2).astype(np.float64), ids)
-    det = cv2.aruco.ArucoDetector(cvb.getDictionary())
+    grid = board._cv_grid()
+    det = cv2.aruco.ArucoDetector(grid.getDictionary())
     params = det.getDetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     det.setDetectorParameters(params)
-    corners, ids, _ = det.detectMarkers(gray)
-    if ids is None or len(ids) < 2:
+    marker_corners, marker_ids, _ = det.detectMarkers(gray)
+    if marker_ids is None or len(marker_ids) < 2:
         return None
-    obj, img = cvb.matchImagePoints(corners, ids)
-    if obj is None or len(obj) < board.min_points:
+    grid_obj, grid_img = grid.matchImagePoints(marker_corners, marker_ids)
+    if grid_obj is None or len(grid_obj) < board.min_points:
         return None
-    return BoardDetection(obj.reshape(-1, 3).astype(np.float64), img.reshape(-1, 2).astype(np.float64),
-                          ids.ravel().astype(np.int32))
+    return BoardDetection(grid_obj.reshape(-1, 3).astype(np.float64), grid_img.reshape(-1, 2).astype(np.float64),
+                          marker_ids.ravel().astype(np.int32))
 
 
 def board_texture(board: BoardSpec, px_per_square: int = 40) -> tuple[NDArray[np.uint8], float, NDArray[np.float64]]:
@@ -220,6 +223,7 @@ def board_texture(board: BoardSpec, px_per_square: int = 40) -> tuple[NDArray[np
     """
     pps = int(px_per_square)
     mpp = board.square_m / pps
+    core: NDArray[np.uint8]
     if board.kind == "chessboard":
         nx, ny = board.cols + 1, board.rows + 1
         j, i = np.mgrid[0:ny * pps, 0:nx * pps]
@@ -227,15 +231,18 @@ def board_texture(board: BoardSpec, px_per_square: int = 40) -> tuple[NDArray[np
         core = np.where(sq == 0, 0, 255).astype(np.uint8)
         origin = np.array([-board.square_m, -board.square_m])  # the outer corner of the pattern
     elif board.kind == "charuco":
-        core = board._cv_board().generateImage((board.cols * pps, board.rows * pps), marginSize=0, borderBits=1)
+        core = cast("NDArray[np.uint8]",  # a grey uint8 picture: cv2's stubs carry no dtype
+                    board._cv_charuco().generateImage((board.cols * pps, board.rows * pps), marginSize=0,
+                                                      borderBits=1))
         origin = np.zeros(2)
     else:
         # the grid board: markers of square_m with gaps of marker_m; keep an integer pixel pitch
         mpp = board.square_m / pps
         w = int(round((board.cols * board.square_m + (board.cols - 1) * board.marker_m) / mpp))
         h = int(round((board.rows * board.square_m + (board.rows - 1) * board.marker_m) / mpp))
-        core = board._cv_board().generateImage((w, h), marginSize=0, borderBits=1)
+        core = cast("NDArray[np.uint8]", board._cv_grid().generateImage((w, h), marginSize=0, borderBits=1))
         origin = np.zeros(2)
     margin = pps
-    tex = cv2.copyMakeBorder(core, margin, margin, margin, margin, cv2.BORDER_CONSTANT, value=255)
+    tex = cast("NDArray[np.uint8]", cv2.copyMakeBorder(core, margin, margin, margin, margin, cv2.BORDER_CONSTANT,
+                                                       value=255))
     return tex, mpp, origin - margin * mpp

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -57,7 +58,7 @@ def read_image(path: str | Path) -> NDArray[np.uint8]:
     img = cv2.imread(str(p), cv2.IMREAD_COLOR)
     if img is None:
         raise ConfigError(f"{p}: not an image OpenCV can read")
-    return img
+    return cast("NDArray[np.uint8]", img)  # IMREAD_COLOR gives 8-bit BGR: cv2's stubs carry no dtype
 
 
 def _colour_bar(width: int, lo: float, hi: float, cmap: int) -> NDArray[np.uint8]:
@@ -93,7 +94,7 @@ def draw_scan_on_image(
     """
     img = np.asarray(image_bgr)
     if img.ndim == 2:
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+        img = cast("NDArray[np.uint8]", cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))  # uint8 in, uint8 out
     img = img.copy()
     intr = calibration.intrinsics
     if (img.shape[1], img.shape[0]) != (intr.width, intr.height):
@@ -141,8 +142,10 @@ def _bgr(image: Image) -> NDArray[np.uint8]:
     if image.encoding == "rgb8":
         return np.ascontiguousarray(a[:, :, ::-1])
     if a.dtype != np.uint8:
-        a = cv2.normalize(np.nan_to_num(a.astype(np.float32)), None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-    return cv2.cvtColor(a, cv2.COLOR_GRAY2BGR)
+        # cv2's stubs do not allow dst=None, which OpenCV takes as "allocate the output"
+        a = cv2.normalize(np.nan_to_num(a.astype(np.float32)), None, 0, 255,  # type: ignore[call-overload]
+                          cv2.NORM_MINMAX).astype(np.uint8)
+    return cast("NDArray[np.uint8]", cv2.cvtColor(a, cv2.COLOR_GRAY2BGR))  # uint8 in, uint8 out
 
 
 def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic: str | None = None,

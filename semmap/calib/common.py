@@ -7,6 +7,7 @@ maps LiDAR-frame points into the camera optical frame, ``T_lidar_cam`` is its in
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import cv2
 import numpy as np
@@ -68,7 +69,7 @@ def project(intr: CameraIntrinsics, points_cam: ArrayLike) -> NDArray[np.float64
         uv, _ = cv2.fisheye.projectPoints(pts, zero, zero, intr.K, intr.D)
     else:
         uv, _ = cv2.projectPoints(pts, zero, zero, intr.K, intr.D)
-    return uv.reshape(-1, 2)
+    return cast("NDArray[np.float64]", uv).reshape(-1, 2)  # float64 in, float64 out: cv2's stubs carry no dtype
 
 
 def normalize_pixels(intr: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.float64]:
@@ -80,4 +81,4 @@ def normalize_pixels(intr: CameraIntrinsics, pixels: ArrayLike) -> NDArray[np.fl
         xn = cv2.fisheye.undistortPoints(px, intr.K, intr.D)
     else:
         xn = cv2.undistortPoints(px, intr.K, intr.D)
-    return xn.reshape(-1, 2)
+    return cast("NDArray[np.float64]", xn).reshape(-1, 2)  # float64 in, float64 out: cv2's stubs carry no dtype

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -139,8 +139,8 @@ def _ransac(obj: NDArray[np.float64], xn: NDArray[np.float64], f: float, thresho
         except cv2.error:
             continue
         for r, t in zip(rvecs[:nsol], tvecs[:nsol]):
-            R, _ = cv2.Rodrigues(r)
-            err = _errors_px(R, t.ravel(), obj, xn, f)
+            R = cast("NDArray[np.float64]", cv2.Rodrigues(r)[0])  # float64 (cv2's stubs carry no dtype)
+            err = _errors_px(R, cast("NDArray[np.float64]", t).ravel(), obj, xn, f)
             inl = err < threshold_px
             # MSAC cost: inliers pay their squared error, outliers the threshold
             cost = float(np.sum(np.minimum(err, threshold_px) ** 2))

@@ -146,11 +146,12 @@ def calibrate_intrinsics(
             if zero_tangential:
                 flags |= cv2.CALIB_ZERO_TANGENT_DIST
             K0 = np.eye(3)
-            rms, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img_pts, size, K0, None, flags=flags, criteria=criteria)
+            rms, K_cv, D, rvecs, tvecs = cv2.calibrateCamera(obj, img_pts, size, K0, None, flags=flags,
+                                                            criteria=criteria)
             D = np.asarray(D, dtype=np.float64).ravel()[: distortion_coefficients]
         else:
             flags = _fisheye_flag("RECOMPUTE_EXTRINSIC") | _fisheye_flag("FIX_SKEW")
-            rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+            rms, K_cv, D, rvecs, tvecs = cv2.fisheye.calibrate(
                 [o.reshape(1, -1, 3).astype(np.float64) for o in obj],
                 [p.reshape(1, -1, 2).astype(np.float64) for p in img_pts], size, np.eye(3), np.zeros(4),
                 flags=flags, criteria=criteria)
@@ -159,7 +160,7 @@ def calibrate_intrinsics(
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "failed"
         raise ConfigError(f"calibration did not converge ({msg}); use more images with the board "
                           "at different angles, or another camera model") from None
-    K = np.asarray(K, dtype=np.float64)
+    K = np.asarray(K_cv, dtype=np.float64)
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and K[0, 0] > 0 and K[1, 1] > 0):
         raise ConfigError("calibration gave a non-finite camera matrix; use more images at different angles")
     intr = CameraIntrinsics(w, h, K, D, model)

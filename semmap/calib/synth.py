@@ -9,6 +9,7 @@ front-left corner (yawed 45°), the camera at the front centre, so
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
 import numpy as np
@@ -282,7 +283,7 @@ def render_board_image(
                          borderValue=background).astype(np.float32)
     img /= 4.0
     if blur_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_px)
+        img = cast("NDArray[np.float32]", cv2.GaussianBlur(img, (0, 0), blur_px))  # float32 in, float32 out
     img += rng.normal(0.0, noise, img.shape).astype(np.float32)
     return np.clip(img, 0, 255).astype(np.uint8)
 

@@ -32,7 +32,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -95,7 +95,7 @@ def board_plane(detection: BoardDetection, intrinsics: CameraIntrinsics) -> Boar
     best = None
     for r, t in zip(rvecs[:n], tvecs[:n]):
         r, t = cv2.solvePnPRefineLM(obj, xn, eye, None, r.copy(), t.copy())
-        R, _ = cv2.Rodrigues(r)
+        R = cast("NDArray[np.float64]", cv2.Rodrigues(r)[0])  # float64 (cv2's stubs carry no dtype)
         pc = obj @ R.T + t.ravel()
         err = float(np.sqrt(np.mean(np.sum((project(intrinsics, pc) - detection.image_points) ** 2, axis=1))))
         if best is None or err < best[2]:
@@ -300,12 +300,12 @@ def find_board_segments(
         for i in present:
             chosen[i] = min(cands[i], key=lambda s: abs(np.linalg.norm(s.centre) - np.linalg.norm(planes[i].centre)))
         return chosen
-    pts = {(i, k): np.asarray(scans[i])[s.indices] for i in present for k, s in enumerate(cands[i])}
+    cand_pts = {(i, k): np.asarray(scans[i])[s.indices] for i in present for k, s in enumerate(cands[i])}
 
     def assign(T: NDArray[np.float64], cap: float) -> tuple[float, dict[int, tuple[int, float]]]:
         best: dict[int, tuple[int, float]] = {}
         for i in present:
-            rms = [float(np.sqrt(np.mean(_plane_residuals(T, planes[i], pts[(i, k)]) ** 2)))
+            rms = [float(np.sqrt(np.mean(_plane_residuals(T, planes[i], cand_pts[(i, k)]) ** 2)))
                    for k in range(len(cands[i]))]
             k = int(np.argmin(rms))
             best[i] = (k, rms[k])
@@ -317,7 +317,7 @@ def find_board_segments(
     n_combos = math.prod(len(cands[i]) for i in present)
     exhaustive = len(present) <= 6 and n_combos <= iterations
     samples = (itertools.product(*(range(len(cands[i])) for i in present)) if exhaustive else
-               ((None,) for _ in range(iterations)))
+               (() for _ in range(iterations)))  # random draws: the sample is not used
     hypotheses: list[tuple[float, NDArray[np.float64], NDArray[np.float64] | None]] = []
     for sample in samples:
         if exhaustive:
@@ -329,7 +329,7 @@ def find_board_segments(
         if np.linalg.svd(np.array([p.normal for p in sub_planes]), compute_uv=False)[1] < 0.05:
             continue
         free = _free_direction(sub_planes)
-        sub_pts = [pts[(i, k)] for i, k in zip(views, picks)]
+        sub_pts = [cand_pts[(i, k)] for i, k in zip(views, picks)]
         T = linear_target_solution(sub_planes, sub_pts, free)
         hypotheses.append((assign(T, 3 * max_residual_m)[0], T, free))
     # the linear solution is rough: polish the most promising hypotheses on every view they fit
@@ -338,7 +338,8 @@ def find_board_segments(
         _, assignment = assign(T, 3 * max_residual_m)
         fit = [i for i, (_, r) in assignment.items() if r < 3 * max_residual_m]
         if len(fit) >= 3:
-            T = _refine_fixed_planes(T, [planes[i] for i in fit], [pts[(i, assignment[i][0])] for i in fit], free)
+            T = _refine_fixed_planes(T, [planes[i] for i in fit], [cand_pts[(i, assignment[i][0])] for i in fit],
+                                     free)
         cost, assignment = assign(T, max_residual_m)
         if cost < best_cost:
             best_cost, best_assign = cost, assignment
@@ -350,7 +351,7 @@ def find_board_segments(
     kept = [i for i, (_, r) in best_assign.items() if r < max_residual_m]
     if len(kept) >= 3:
         sub_planes = [planes[i] for i in kept]
-        sub_pts = [pts[(i, best_assign[i][0])] for i in kept]
+        sub_pts = [cand_pts[(i, best_assign[i][0])] for i in kept]
         free = _free_direction(sub_planes)
         T = _refine_fixed_planes(linear_target_solution(sub_planes, sub_pts, free), sub_planes, sub_pts, free)
         _, best_assign = assign(T, max_residual_m)

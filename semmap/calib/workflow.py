@@ -92,7 +92,7 @@ def pair_by_stamp(images: Sequence[Path], scans: Sequence[Path]) -> list[tuple[P
     """
     if all(p.stem.isdigit() for p in [*images, *scans]) and images and scans:
         st = np.array([int(s.stem) for s in scans], dtype=np.int64)
-        pairs = []
+        pairs: list[tuple[Path, Path, float | None]] = []
         for im in images:
             k = int(np.argmin(np.abs(st - int(im.stem))))
             pairs.append((im, scans[k], (int(st[k]) - int(im.stem)) * 1e-9))

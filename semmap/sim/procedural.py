@@ -40,7 +40,7 @@ from ..config import SimConfig, load_model
 from ..errors import SimulationError
 from ..geometry import se2_compose, wrap_angle
 from .robot import Trajectory, check_clearance, people_clearance, plan_tour
-from .scenarios import IdCounter, Scenario, walls_with_doors
+from .scenarios import IdCounter, Scenario, WallSegment, walls_with_doors
 from .sensors import mount_se2
 from .world import (
     Person,
@@ -367,11 +367,11 @@ def _building(rng: np.random.Generator) -> _Building:
     if not rooms:
         rooms = [(0.0, 0.0, w, h)]
     while len(rooms) < n_rooms:
-        cands = [i for i, r in enumerate(rooms) if max(r[2] - r[0], r[3] - r[1]) >= 2 * MIN_ROOM_M]
-        if not cands:
+        splittable = [i for i, r in enumerate(rooms) if max(r[2] - r[0], r[3] - r[1]) >= 2 * MIN_ROOM_M]
+        if not splittable:
             break
-        area = np.array([(rooms[i][2] - rooms[i][0]) * (rooms[i][3] - rooms[i][1]) for i in cands])
-        i = cands[int(rng.choice(len(cands), p=area**2 / (area**2).sum()))]
+        area = np.array([(rooms[i][2] - rooms[i][0]) * (rooms[i][3] - rooms[i][1]) for i in splittable])
+        i = splittable[int(rng.choice(len(splittable), p=area**2 / (area**2).sum()))]
         r = rooms[i]
         rw, rh = r[2] - r[0], r[3] - r[1]
         axis = 0 if rw >= rh else 1
@@ -458,18 +458,18 @@ def _building(rng: np.random.Generator) -> _Building:
         raise _Retry("rooms not connected")
 
     ids = IdCounter(0)
-    segs: list[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]] = []
+    segs: list[WallSegment] = []
     m = len(outline)
     for k in range(m):
         p0, p1 = outline[k], outline[(k + 1) % m]
         segs.append(((float(p0[0]), float(p0[1])), (float(p1[0]), float(p1[1])), []))
     for p0, p1 in segments:
-        a, b = np.asarray(p0), np.asarray(p1)
-        u = _unit(b - a)
+        pa, pb = np.asarray(p0), np.asarray(p1)
+        u = _unit(pb - pa)
         cuts = []
         for d in doors:
-            rel = d.centre - a
-            if abs(float(rel[0] * u[1] - rel[1] * u[0])) < 1e-6 and -1e-6 <= float(rel @ u) <= np.hypot(*(b - a)):
+            rel = d.centre - pa
+            if abs(float(rel[0] * u[1] - rel[1] * u[0])) < 1e-6 and -1e-6 <= float(rel @ u) <= np.hypot(*(pb - pa)):
                 cuts.append((float(rel @ u), d.width + WALL_THICKNESS_M))
         segs.append((p0, p1, cuts))
     walls = walls_with_doors(ids, segs, WALL_THICKNESS_M, WALL_HEIGHT_M)
@@ -842,8 +842,8 @@ def _table_group(rng: np.random.Generator, pl: _Placer, room: _Room, against_wal
         tab = table(ids(), (float(p[0]), float(p[1]), yaw), tw, td)
         if not pl.add(tab, room):
             continue
-        n = _chairs_around(rng, pl, room, tab, tw, td, yaw, against_wall, int(rng.integers(2, 5)))
-        if n >= 2 or (against_wall and n >= 1):
+        n_chairs = _chairs_around(rng, pl, room, tab, tw, td, yaw, against_wall, int(rng.integers(2, 5)))
+        if n_chairs >= 2 or (against_wall and n_chairs >= 1):
             return True
         pl.remove([o.id for o in pl.objects if o.id >= tab.id])
     return False
@@ -929,8 +929,8 @@ def _keepout(b: _Building, traj: Trajectory, cfg: SimConfig) -> _Raster:
     box = np.array([[-hl, -hw], [hl, -hw], [hl, hw], [-hl, hw]])
     polys = []
     for x, y, yaw in poses[keep]:
-        c, s = math.cos(yaw), math.sin(yaw)
-        polys.append(r._px(box @ np.array([[c, s], [-s, c]]) + [x, y]))
+        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+        polys.append(r._px(box @ np.array([[cos_yaw, sin_yaw], [-sin_yaw, cos_yaw]]) + [x, y]))
     cv2.fillPoly(r.img, polys, 1, lineType=cv2.LINE_8, shift=4)
     for d in b.doors:
         half = 0.5 * d.width + 0.15
@@ -1058,7 +1058,8 @@ def _body(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
-def _make(sc: _Scene, role: str, waypoints: Sequence[Sequence[float]], body: dict[str, Any], **kw: Any) -> Person:
+def _make(sc: _Scene, role: str, waypoints: Sequence[NDArray[np.float64]] | NDArray[np.float64], body: dict[str, Any],
+          **kw: Any) -> Person:
     pid = sc.pid
     return Person(id=pid, name=f"{role}_{pid}", waypoints=np.round(np.asarray(waypoints, float), 4), **body, **kw)
 

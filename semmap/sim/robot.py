@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -44,7 +45,7 @@ class Trajectory:
     def duration(self) -> float:
         return float(self.t[-1])
 
-    def pose(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    def pose(self, t: NDArray[np.floating[Any]] | float) -> NDArray[np.float64]:
         """(…, 3) poses at times ``t`` (clamped to the tour)."""
         tt = np.asarray(t, dtype=np.float64)
         out = np.stack(

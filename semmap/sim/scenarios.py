@@ -35,7 +35,7 @@ from .world import (
     wall,
 )
 
-__all__ = ["SCENARIOS", "IdCounter", "Scenario", "get_scenario", "walls_with_doors"]
+__all__ = ["SCENARIOS", "IdCounter", "Scenario", "WallSegment", "get_scenario", "walls_with_doors"]
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,12 @@ class IdCounter:
         return self.n
 
 
-def walls_with_doors(ids: IdCounter,
-                     segments: Iterable[tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]],
-           thickness: float = 0.12, height: float = 2.6) -> list[WorldObject]:
+# a straight wall from p0 to p1 with its door gaps: (p0, p1, [(centre along, width), ...])
+WallSegment = tuple[tuple[float, float], tuple[float, float], list[tuple[float, float]]]
+
+
+def walls_with_doors(ids: IdCounter, segments: Iterable[WallSegment],
+                     thickness: float = 0.12, height: float = 2.6) -> list[WorldObject]:
     """Straight walls with door gaps: each segment is (p0, p1, [(centre along, width), ...])."""
     out = []
     for p0, p1, doors in segments:
@@ -118,7 +121,7 @@ def demo() -> Scenario:
 
 def _ward_building(ids: IdCounter) -> list[WorldObject]:
     doors = [(3.0 + 6.0 * i, 1.4) for i in range(5)]
-    segs = [
+    segs: list[WallSegment] = [
         ((0, 0), (30, 0), doors),  # corridor south wall
         ((0, 2.4), (30, 2.4), doors),  # corridor north wall
         ((0, -5.0), (0, 7.4), []),

@@ -127,8 +127,8 @@ class CameraSim:
         """Render the view from ``base_pose`` (world frame)."""
         cam = se2_compose(base_pose, self.mount)
         origin = cam[:2]
-        c, s = math.cos(cam[2]), math.sin(cam[2])
-        dirs = self.local_dirs @ np.array([[c, s], [-s, c]])
+        cos_yaw, sin_yaw = math.cos(cam[2]), math.sin(cam[2])
+        dirs = self.local_dirs @ np.array([[cos_yaw, sin_yaw], [-sin_yaw, cos_yaw]])
         # cull to the field of view (bounding circles)
         rel = parts.centre - origin
         dist = np.hypot(rel[:, 0], rel[:, 1])

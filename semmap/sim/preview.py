@@ -15,18 +15,12 @@ from matplotlib.patches import Patch
 from numpy.typing import NDArray
 
 from ..geometry import project_points, se2_compose, se3_apply
-from ..palette import MOBILITY_COLORS, class_color
+from ..palette import MOBILITY_COLORS, class_color, rgb01
 from ..records import Calibration, GridSpec, Mobility
 from .robot import OdometryTrace, Trajectory
 from .world import World
 
 __all__ = ["camera_preview", "world_preview"]
-
-
-def _rgb01(rgb: tuple[int, int, int]) -> tuple[float, float, float]:
-    """An 8-bit RGB colour as matplotlib's 0-1 floats (the legend patches take a tuple, not an array)."""
-    r, g, b = rgb
-    return (r / 255, g / 255, b / 255)
 
 
 def world_preview(path: Path, world: World, spec: GridSpec, layers: dict[str, NDArray[np.bool_]],
@@ -70,7 +64,7 @@ def world_preview(path: Path, world: World, spec: GridSpec, layers: dict[str, ND
                 xytext=(start[0], start[1]), arrowprops=dict(arrowstyle="->", color="#1f5fbf", lw=2))
     ax.plot(start[0], start[1], "s", color="#1f5fbf", ms=6, label="start")
     handles, _ = ax.get_legend_handles_labels()
-    handles += [Patch(color=_rgb01(class_color(c)), label=c) for c in h_cls]
+    handles += [Patch(color=rgb01(class_color(c)), label=c) for c in h_cls]
     handles += [Patch(color=(0.16, 0.16, 0.16), label="wall / pillar"),
                 Patch(color=(1.0, 0.84, 0.84), label="swept by people"),
                 plt.Line2D([], [], ls="--", color="#e6194b", label="people's paths")]
@@ -105,7 +99,7 @@ def camera_preview(path: Path, rgb: NDArray[np.uint8], label: NDArray[np.uint16]
     axes[0].set_title("RGB")
     axes[1].imshow(overlay.astype(np.uint8))
     axes[1].set_title("ground-truth labels")
-    axes[1].legend(handles=[Patch(color=_rgb01(class_color(names[v - 1])), label=names[v - 1])
+    axes[1].legend(handles=[Patch(color=rgb01(class_color(names[v - 1])), label=names[v - 1])
                             for v in present], loc="lower right", fontsize=7)
     axes[2].imshow(rgb)
     for m in (Mobility.STATIC, Mobility.SEMI_STATIC, Mobility.DYNAMIC):

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import BagError, SemmapError
 from ..geometry import se3_to_translation_quaternion, yaw_to_quaternion
@@ -306,14 +306,16 @@ class BagWriter:
         stamp_ns: int,
         frame_id: str,
         child_frame_id: str,
-        pose: Sequence[float],
-        twist: Sequence[float],
-        pose_cov_diag: Sequence[float] = (0.0,) * 6,
-        twist_cov_diag: Sequence[float] = (0.0,) * 6,
+        pose: ArrayLike,
+        twist: ArrayLike,
+        pose_cov_diag: ArrayLike = (0.0,) * 6,
+        twist_cov_diag: ArrayLike = (0.0,) * 6,
     ) -> None:
         """Write a planar ``nav_msgs/Odometry``: pose (x, y, yaw), twist (vx, vy, wz) in the child frame."""
         typ = "nav_msgs/msg/Odometry"
         t = self._types
+        pose = np.asarray(pose, np.float64)
+        twist = np.asarray(twist, np.float64)
         q = yaw_to_quaternion(pose[2])
         pose_msg = t["geometry_msgs/msg/PoseWithCovariance"](
             pose=t["geometry_msgs/msg/Pose"](

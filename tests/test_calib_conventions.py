@@ -1,7 +1,10 @@
 """The calibration file and the transform names: T_cam_lidar maps LiDAR points into the camera."""
 
+import copy
+
 import numpy as np
 import pytest
+import yaml
 
 from semmap.calib.synth import sim_calibration_truth, sim_intrinsics
 from semmap.errors import ConfigError
@@ -87,3 +90,100 @@ def test_ros_camera_info_yaml_is_accepted_as_intrinsics(tmp_path):
                  "distortion_coefficients: {rows: 1, cols: 5, data: [0.114, 0.193, -0.0027, 0.0037, -1.095]}\n")
     intr = read_intrinsics(p)
     assert intr.fx == pytest.approx(519.3) and intr.D[4] == pytest.approx(-1.095) and intr.model == "pinhole"
+
+
+ROS_INFO = {"image_width": 640, "image_height": 480, "camera_name": "front",
+            "camera_matrix": {"rows": 3, "cols": 3, "data": [519.3, 0, 331.1, 0, 518.9, 229.4, 0, 0, 1]},
+            "distortion_model": "plumb_bob",
+            "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.114, 0.193, -0.0027, 0.0037, -1.095]}}
+
+
+def _set(data, key, value):
+    *parents, leaf = key.split(".")
+    for p in parents:
+        data = data[p]
+    if value is _DROP:
+        del data[leaf]
+    else:
+        data[leaf] = value
+
+
+_DROP = object()
+_NOT_RIGID = [[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+_FAR = [[1.0, 0, 0, 420.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("intrinsics.width", 640.5, "intrinsics.width: must be a whole number of pixels, got 640.5"),
+    ("intrinsics.height", 0, "intrinsics.height: must be between 1 and 100000 pixels, got 0"),
+    ("intrinsics.height", "480", "intrinsics.height: must be a whole number of pixels"),
+    ("intrinsics.model", "kannala", "intrinsics.model: Input should be 'pinhole' or 'fisheye'"),
+    ("intrinsics.K", [[600.0, 0, 320], [0, 600, 240]], r"intrinsics.K: must be a 3x3 matrix, got shape \(2, 3\)"),
+    ("intrinsics.K", [[-600.0, 0, 320], [0, 600, 240], [0, 0, 1]], "intrinsics: K must have positive focal lengths"),
+    ("intrinsics.K", _DROP, "intrinsics.K: Field required"),
+    ("intrinsics.D", [0.1, 0.0, 0.0], "intrinsics: pinhole distortion needs 4, 5, 8, 12 or 14 coefficients, got 3"),
+    ("intrinsics.D", "none", "intrinsics.D: must be a list of numbers, got str"),
+    ("intrinsics", [640, 480], r"intrinsics: must be a mapping \(model, width, height, K, D\)"),
+    ("T_cam_lidar", [[1.0, 0, 0], [0, 1, 0], [0, 0, 1]], r"T_cam_lidar: must be a 4x4 matrix, got shape \(3, 3\)"),
+    ("T_cam_lidar", _NOT_RIGID, r"T_cam_lidar rotation is not orthonormal with det \+1"),
+    ("T_cam_lidar", _FAR, r"T_cam_lidar: the camera is 420 m from the LiDAR, more than 10 m"),
+    ("T_lidar_cam", _FAR, "T_lidar_cam is not the inverse of T_cam_lidar"),
+    ("T_lidar_cam", "inverse", "T_lidar_cam: must be a list of numbers, got str"),
+    ("camera_frame", "", "camera_frame: must be a frame name, got ''"),
+    ("lidar_frame", 7, "lidar_frame: must be a frame name, got 7"),
+])
+def test_a_bad_field_of_a_calibration_file_is_one_line_naming_the_file_and_the_field(tmp_path, key, value, message):
+    good = write_calibration(tmp_path / "good.yaml", Calibration(sim_intrinsics(), sim_calibration_truth()))
+    data = yaml.safe_load(good.read_text())
+    if key == "T_cam_lidar" and value is _FAR:
+        del data["T_lidar_cam"]
+    _set(data, key, value)
+    path = tmp_path / "calibration.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=message) as err:
+        read_calibration(path)
+    assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("image_width", _DROP, "image_width: Field required"),
+    ("image_height", 1e6, "image_height: must be between 1 and 100000 pixels"),
+    ("camera_matrix.data", [519.3, 0, 331.1, 0, 518.9, 229.4, 0, 1], "camera_matrix.data: must have 9 numbers, got 8"),
+    ("camera_matrix", [519.3, 0, 331.1], r"camera_matrix: must be a mapping \(with 'data'\)"),
+    ("distortion_model", "kb4", "distortion_model: Input should be 'plumb_bob', 'rational_polynomial' or "
+                                "'equidistant'"),
+    ("distortion_model", "equidistant", "camera info: fisheye distortion needs 4 coefficients, got 5"),
+    ("distortion_coefficients.data", [0.1, "x", 0, 0, 0], "distortion_coefficients.data: must be a list of numbers"),
+])
+def test_a_bad_field_of_a_ros_camera_info_file_is_one_line_naming_the_file_and_the_field(tmp_path, key, value,
+                                                                                          message):
+    data = copy.deepcopy(ROS_INFO)
+    _set(data, key, value)
+    path = tmp_path / "ost.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=message) as err:
+        read_intrinsics(path)
+    assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+
+
+def test_unknown_keys_and_defaults_of_a_calibration_file(tmp_path):
+    """A newer file's keys are ignored (top level and in ``intrinsics``); D and the frames have defaults."""
+    calib = Calibration(sim_intrinsics(), sim_calibration_truth(), camera_frame="cam", lidar_frame="front_laser")
+    path = write_calibration(tmp_path / "calibration.yaml", calib, {"extrinsics": {"rms_m": 0.01}}, {"rms_px": 0.2})
+    data = yaml.safe_load(path.read_text())
+    data["written_by"] = {"semmap": "9.9"}
+    data["intrinsics"]["lens"] = "wide"
+    path.write_text(yaml.safe_dump(data))
+    back = read_calibration(path)
+    assert (back.camera_frame, back.lidar_frame) == ("cam", "front_laser")
+    assert np.allclose(back.T_cam_lidar, calib.T_cam_lidar, atol=1e-9)
+    assert np.allclose(back.intrinsics.K, calib.intrinsics.K)
+    assert read_intrinsics_report(path) == {"rms_px": 0.2, "lens": "wide"}
+
+    for key in ("camera_frame", "lidar_frame", "intrinsics.D", "T_lidar_cam"):
+        _set(data, key, _DROP)
+    data["intrinsics"]["model"] = "fisheye"
+    path.write_text(yaml.safe_dump(data))
+    back = read_calibration(path)
+    assert (back.camera_frame, back.lidar_frame) == ("camera_optical_frame", "laser")
+    assert back.intrinsics.model == "fisheye" and back.intrinsics.D.tolist() == [0.0] * 4

@@ -105,10 +105,10 @@ def test_world_yaml_roundtrip(tmp_path):
 def test_world_file_errors_name_the_problem(tmp_path):
     bad = tmp_path / "w.yaml"
     bad.write_text("name: x\nobjects:\n  - {id: 1, class: chair, mobility: sometimes, parts: []}\n")
-    with pytest.raises(ConfigError, match=r"objects\[0\].*mobility"):
+    with pytest.raises(ConfigError, match=r"w.yaml: objects.0.mobility: unknown mobility 'sometimes'"):
         load_world(bad)
     bad.write_text("name: x\ncolour: red\n")
-    with pytest.raises(ConfigError, match="unknown key"):
+    with pytest.raises(ConfigError, match="w.yaml: colour: unknown key"):
         load_world(bad)
 
 

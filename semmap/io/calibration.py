@@ -26,10 +26,23 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PlainValidator,
+    PrivateAttr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
+from ..config import load_model
 from ..errors import ConfigError
 from ..records import Calibration, CameraIntrinsics
 from .yamlio import read_yaml, write_yaml
@@ -44,48 +57,210 @@ __all__ = [
     "write_intrinsics",
     "read_intrinsics",
     "read_intrinsics_report",
+    "IntrinsicsFile",
+    "CameraFile",
+    "CalibrationFile",
+    "RosCameraInfoFile",
 ]
 
-_INTRINSICS_KEYS = ("model", "width", "height", "K", "D")
 _MAX_IMAGE_PX = 100_000  # wider or taller than any camera: a wrong number, not a camera
 _MAX_BASELINE_M = 10.0  # LiDAR and camera sit on one robot: further apart is a unit error (millimetres?)
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())
+# ---------------------------------------------------------------------------------------
+# The file schemas. Pydantic turns a ValueError raised here into one line naming the file and the
+# field (semmap.config.load_model); the records (CameraIntrinsics, Calibration) check what any
+# camera and transform must satisfy (finite numbers, K's form, D's length for the model, a rigid
+# T_cam_lidar), and their message names the field.
 
 
-def _pixels(v: Any, name: str) -> int:
+def _pixels(v: Any) -> int:
     """An image size: a whole, positive number of pixels."""
     if isinstance(v, bool) or not isinstance(v, int | float):
-        raise TypeError(f"{name} must be a whole number of pixels, got {v!r}")
+        raise ValueError(f"must be a whole number of pixels, got {v!r}")
     if isinstance(v, float):
         if not (math.isfinite(v) and v.is_integer()):
-            raise ValueError(f"{name} must be a whole number of pixels, got {v!r}")
+            raise ValueError(f"must be a whole number of pixels, got {v!r}")
         v = int(v)
     if not 0 < v <= _MAX_IMAGE_PX:
-        raise ValueError(f"{name} must be between 1 and {_MAX_IMAGE_PX} pixels, got {v}")
+        raise ValueError(f"must be between 1 and {_MAX_IMAGE_PX} pixels, got {v}")
     return v
 
 
-def _numbers(v: Any, name: str) -> np.ndarray:
-    """A (nested) list of numbers as a float array; strings, mappings and ragged lists are errors."""
+def _numbers(v: Any) -> NDArray[np.float64]:
+    """A (nested) list of numbers as a float array; strings, mappings, null and ragged lists are errors."""
     if isinstance(v, str | bytes | dict) or v is None:
-        raise TypeError(f"{name} must be a list of numbers, got {type(v).__name__}")
+        raise ValueError(f"must be a list of numbers, got {type(v).__name__}")
     try:
-        a = np.asarray(v, dtype=np.float64)
+        return np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name} must be a list of numbers (rows of equal length)") from None
-    return a
+        raise ValueError("must be a list of numbers (rows of equal length)") from None
 
 
-def _frame(data: dict[str, Any], key: str, default: str) -> str:
-    v = data.get(key)
-    if v is None:
-        return default
+def _frame(v: Any) -> str:
     if not isinstance(v, str) or not v:
-        raise TypeError(f"{key} must be a frame name, got {v!r}")
+        raise ValueError(f"must be a frame name, got {v!r}")
     return v
+
+
+def _mapping(keys: str) -> Any:
+    def check(v: Any) -> Any:
+        if not isinstance(v, dict | BaseModel):
+            raise ValueError(f"must be a mapping ({keys})")
+        return v
+
+    return check
+
+
+def _shape(rows: int, cols: int) -> Any:
+    def check(a: NDArray[np.float64]) -> NDArray[np.float64]:
+        if a.shape != (rows, cols):
+            raise ValueError(f"must be a {rows}x{cols} matrix, got shape {a.shape}")
+        return a
+
+    return check
+
+
+Pixels = Annotated[int, BeforeValidator(_pixels)]
+Numbers = Annotated[NDArray[np.float64], PlainValidator(_numbers)]
+FrameName = Annotated[str, BeforeValidator(_frame)]
+
+
+class _FileModel(BaseModel):
+    # Unknown keys (reports, keys of newer files) are ignored: older readers read newer files.
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+
+def _default_distortion(data: dict[str, Any]) -> NDArray[np.float64]:
+    return np.zeros(4 if data.get("model") == "fisheye" else 5)
+
+
+class IntrinsicsFile(_FileModel):
+    """The ``intrinsics`` mapping: the camera model, image size, ``K`` and ``D`` (OpenCV order)."""
+
+    model: Literal["pinhole", "fisheye"] = "pinhole"
+    width: Pixels
+    height: Pixels
+    K: Annotated[Numbers, Field(description="3x3 camera matrix, pixels")]
+    D: Numbers = Field(default_factory=_default_distortion, description="distortion; default none")
+    _camera: CameraIntrinsics = PrivateAttr()
+
+    _K_3x3 = field_validator("K")(_shape(3, 3))
+
+    @model_validator(mode="after")
+    def _record(self) -> IntrinsicsFile:
+        self._camera = CameraIntrinsics(self.width, self.height, self.K, self.D, self.model)
+        return self
+
+    @property
+    def camera(self) -> CameraIntrinsics:
+        return self._camera
+
+
+class CameraFile(_FileModel):
+    """A file holding the camera only (``semmap calibrate intrinsics``): ``T_cam_lidar`` may be missing."""
+
+    intrinsics: Annotated[IntrinsicsFile, BeforeValidator(_mapping("model, width, height, K, D"))]
+
+
+class CalibrationFile(CameraFile):
+    """A calibration file: the camera, ``T_cam_lidar`` and the frames it joins."""
+
+    camera_frame: FrameName = "camera_optical_frame"
+    lidar_frame: FrameName = "laser"
+    T_cam_lidar: Annotated[Numbers, Field(description="4x4, p_cam = T_cam_lidar @ p_lidar")]
+    T_lidar_cam: Annotated[NDArray[np.float64] | None, PlainValidator(_numbers),
+                           Field(description="optional: the inverse, checked")] = None
+    _calibration: Calibration = PrivateAttr()
+
+    _T_4x4 = field_validator("T_cam_lidar")(_shape(4, 4))
+
+    @field_validator("camera_frame", "lidar_frame", mode="before")
+    @classmethod
+    def _null_is_default(cls, v: Any, info: ValidationInfo) -> Any:
+        return cls.model_fields[str(info.field_name)].default if v is None else v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _has_T_cam_lidar(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "T_cam_lidar" not in data:
+            if "T_lidar_cam" in data:
+                raise ValueError("has T_lidar_cam but no T_cam_lidar; write T_cam_lidar (LiDAR points into the "
+                                 "camera), its inverse")
+            raise ValueError("missing T_cam_lidar (the transform mapping LiDAR points into the camera); a "
+                             "camera-only file from `semmap calibrate intrinsics` needs `semmap calibrate "
+                             "extrinsics` or `semmap calibrate target` first")
+        return data
+
+    @model_validator(mode="after")
+    def _record(self) -> CalibrationFile:
+        calib = Calibration(self.intrinsics.camera, self.T_cam_lidar, self.camera_frame, self.lidar_frame)
+        baseline = float(np.linalg.norm(calib.T_cam_lidar[:3, 3]))
+        if baseline > _MAX_BASELINE_M:
+            raise ValueError(f"T_cam_lidar: the camera is {baseline:.4g} m from the LiDAR, more than "
+                             f"{_MAX_BASELINE_M:g} m; translations are in metres (millimetres written as metres?)")
+        inv = self.T_lidar_cam
+        if inv is not None and (inv.shape != (4, 4) or not np.allclose(inv @ calib.T_cam_lidar, np.eye(4),
+                                                                       atol=1e-6)):
+            raise ValueError("T_lidar_cam is not the inverse of T_cam_lidar")
+        self._calibration = calib
+        return self
+
+    @property
+    def calibration(self) -> Calibration:
+        return self._calibration
+
+
+class _RosMatrix(_FileModel):
+    data: Numbers
+
+
+class _RosCameraMatrix(_RosMatrix):
+    @field_validator("data")
+    @classmethod
+    def _nine(cls, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        if v.size != 9:
+            raise ValueError(f"must have 9 numbers, got {v.size}")
+        return v.reshape(3, 3)
+
+
+class _RosDistortion(_RosMatrix):
+    data: Numbers = Field(default_factory=lambda: np.zeros(5))
+
+
+class RosCameraInfoFile(_FileModel):
+    """ROS ``camera_calibration`` YAML (what ``cameracalibrator`` writes)."""
+
+    image_width: Pixels
+    image_height: Pixels
+    camera_matrix: Annotated[_RosCameraMatrix, BeforeValidator(_mapping("with 'data'"))]
+    distortion_model: Literal["plumb_bob", "rational_polynomial", "equidistant"] = "plumb_bob"
+    distortion_coefficients: Annotated[_RosDistortion, BeforeValidator(_mapping("with 'data'")),
+                                       BeforeValidator(lambda v: v or {})] = Field(default_factory=_RosDistortion)
+    _camera: CameraIntrinsics = PrivateAttr()
+
+    @model_validator(mode="after")
+    def _record(self) -> RosCameraInfoFile:
+        try:
+            self._camera = CameraIntrinsics(self.image_width, self.image_height, self.camera_matrix.data,
+                                            self.distortion_coefficients.data,
+                                            "fisheye" if self.distortion_model == "equidistant" else "pinhole")
+        except ValueError as exc:
+            raise ValueError(f"camera info: {exc}") from None
+        return self
+
+    @property
+    def camera(self) -> CameraIntrinsics:
+        return self._camera
+
+
+_INTRINSICS_KEYS = tuple(IntrinsicsFile.model_fields)
+
+
+def _load(model: type[_FileModel], data: Any, source: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a calibration file must be a mapping")
+    return load_model(model, data, source)
 
 
 def _read(path: str | Path) -> Any:
@@ -148,57 +323,12 @@ def write_intrinsics(path: str | Path, intrinsics: CameraIntrinsics, report: dic
     return write_yaml(path, data, header)
 
 
-def _ros_camera_info(data: dict[str, Any], source: str) -> CameraIntrinsics:
-    """ROS ``camera_calibration`` YAML (what ``cameracalibrator`` writes)."""
-    try:
-        cm = data["camera_matrix"]
-        if not isinstance(cm, dict):
-            raise TypeError("camera_matrix must be a mapping with 'data'")
-        K = _numbers(cm["data"], "camera_matrix.data")
-        if K.size != 9:
-            raise ValueError(f"camera_matrix.data must have 9 numbers, got {K.size}")
-        dc = data.get("distortion_coefficients") or {}
-        if not isinstance(dc, dict):
-            raise TypeError("distortion_coefficients must be a mapping with 'data'")
-        D = _numbers(dc.get("data", [0.0] * 5), "distortion_coefficients.data")
-        model = str(data.get("distortion_model", "plumb_bob"))
-        if model not in ("plumb_bob", "rational_polynomial", "equidistant"):
-            raise ConfigError(f"{source}: distortion_model {model!r} is not supported "
-                              "(plumb_bob, rational_polynomial or equidistant)")
-        return CameraIntrinsics(_pixels(data["image_width"], "image_width"),
-                                _pixels(data["image_height"], "image_height"), K.reshape(3, 3), D,
-                                "fisheye" if model == "equidistant" else "pinhole")
-    except KeyError as exc:
-        raise ConfigError(f"{source}: camera info: missing key {exc}") from None
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ConfigError(f"{source}: camera info: {_one_line(exc)}") from None
-
-
 def intrinsics_from_dict(data: Any, source: str) -> CameraIntrinsics:
     """The camera from a semmap calibration mapping (with or without ``T_cam_lidar``) or a ROS
     camera-info mapping."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: a calibration file must be a mapping")
-    if "intrinsics" not in data and "camera_matrix" in data:
-        return _ros_camera_info(data, source)
-    try:
-        intr_d = data["intrinsics"]
-        if not isinstance(intr_d, dict):
-            raise TypeError("must be a mapping (model, width, height, K, D)")
-        model = intr_d.get("model", "pinhole")
-        if model not in ("pinhole", "fisheye"):
-            raise ValueError(f"model must be 'pinhole' or 'fisheye', got {model!r}")
-        return CameraIntrinsics(
-            width=_pixels(intr_d["width"], "width"),
-            height=_pixels(intr_d["height"], "height"),
-            K=_numbers(intr_d["K"], "K"),
-            D=_numbers(intr_d.get("D", [0.0] * (4 if model == "fisheye" else 5)), "D"),
-            model=model,
-        )
-    except KeyError as exc:
-        raise ConfigError(f"{source}: intrinsics: missing key {exc}") from None
-    except (TypeError, ValueError, AttributeError, OverflowError) as exc:
-        raise ConfigError(f"{source}: intrinsics: {_one_line(exc)}") from None
+    if isinstance(data, dict) and "intrinsics" not in data and "camera_matrix" in data:
+        return _load(RosCameraInfoFile, data, source).camera
+    return _load(CameraFile, data, source).intrinsics.camera
 
 
 def read_intrinsics(path: str | Path) -> CameraIntrinsics:
@@ -216,44 +346,7 @@ def read_intrinsics_report(path: str | Path) -> dict[str, Any]:
 
 
 def calibration_from_dict(data: Any, source: str) -> Calibration:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{source}: a calibration file must be a mapping")
-    if "intrinsics" not in data:
-        raise ConfigError(f"{source}: intrinsics: missing key 'intrinsics'")
-    intr = intrinsics_from_dict(data, source)
-    if "T_cam_lidar" not in data:
-        if "T_lidar_cam" in data:
-            raise ConfigError(f"{source}: has T_lidar_cam but no T_cam_lidar; write T_cam_lidar "
-                              "(LiDAR points into the camera), its inverse")
-        raise ConfigError(f"{source}: missing T_cam_lidar (the transform mapping LiDAR points into the camera); "
-                          "a camera-only file from `semmap calibrate intrinsics` needs `semmap calibrate "
-                          "extrinsics` or `semmap calibrate target` first")
-    try:
-        camera_frame = _frame(data, "camera_frame", "camera_optical_frame")
-        lidar_frame = _frame(data, "lidar_frame", "laser")
-    except TypeError as exc:
-        raise ConfigError(f"{source}: {_one_line(exc)}") from None
-    try:
-        calib = Calibration(
-            intrinsics=intr,
-            T_cam_lidar=_numbers(data["T_cam_lidar"], "T_cam_lidar"),
-            camera_frame=camera_frame,
-            lidar_frame=lidar_frame,
-        )
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{source}: T_cam_lidar: {_one_line(exc)}") from None
-    baseline = float(np.linalg.norm(calib.T_cam_lidar[:3, 3]))
-    if baseline > _MAX_BASELINE_M:
-        raise ConfigError(f"{source}: T_cam_lidar: the camera is {baseline:.4g} m from the LiDAR, more than "
-                          f"{_MAX_BASELINE_M:g} m; translations are in metres (millimetres written as metres?)")
-    if "T_lidar_cam" in data:
-        try:
-            inv = _numbers(data["T_lidar_cam"], "T_lidar_cam")
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"{source}: {_one_line(exc)}") from None
-        if inv.shape != (4, 4) or not np.allclose(inv @ calib.T_cam_lidar, np.eye(4), atol=1e-6):
-            raise ConfigError(f"{source}: T_lidar_cam is not the inverse of T_cam_lidar")
-    return calib
+    return _load(CalibrationFile, data, source).calibration
 
 
 def read_calibration(path: str | Path) -> Calibration:

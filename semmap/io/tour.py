@@ -11,10 +11,11 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from ..config import BuildConfig, load_model, load_yaml
 from ..errors import BagError, ConfigError
@@ -26,7 +27,8 @@ from .messages import camera_info_from_msg, odometry_from_msg, scan_from_msg, tr
 from .tf import TfTree
 from .topics import Topics, pick_topics
 
-__all__ = ["Tour", "Topics", "open_tour", "load_build_config", "resolve_topics", "read_tour_manifest"]
+__all__ = ["Tour", "Topics", "TourManifest", "open_tour", "load_build_config", "resolve_topics",
+           "read_tour_manifest"]
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +50,21 @@ class Tour:
     calibration_path: Path | None  # None: no camera, or the calibration came from the bag (camera_info + /tf)
     T_base_lidar_source: str = ""  # where T_base_lidar came from, for logs and the summary
     calibration_source: str = ""  # where the calibration came from
+
+
+class TourManifest(BaseModel):
+    """The keys of a tour folder's ``tour.yaml`` (written by ``semmap simulate``) that semmap reads.
+
+    The others (seed, message counts, clearances, ground-truth files...) are for people and other
+    tools, and are ignored, as are the keys of a newer semmap's manifest.
+    """
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    scenario: str | None = Field(None, description="the simulated world's name, copied into the build summary")
+    topics: Annotated[dict[str, str | None], BeforeValidator(lambda v: v or {})] = Field(
+        default_factory=dict, description="kind (scan, labels, odometry...) → topic, for one the config leaves unset")
+    label_classes: str | None = Field(None, description="the class list naming the label images' values")
 
 
 def load_build_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> tuple[BuildConfig, Path]:
@@ -113,8 +130,9 @@ def read_tour_manifest(tour: str | Path) -> tuple[Path, Path | None, dict[str, A
         bag.parent if (bag.parent / "tour.yaml").is_file() else None)
     manifest: dict[str, Any] = {}
     if folder is not None:
-        m = load_yaml(folder / "tour.yaml")
-        manifest = m if isinstance(m, dict) else {}
+        path = folder / "tour.yaml"
+        manifest = load_yaml(path) or {}
+        load_model(TourManifest, manifest, str(path))  # the keys semmap reads, checked; the dict is returned whole
     return bag, folder, manifest
 
 

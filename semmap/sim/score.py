@@ -414,6 +414,7 @@ def naive_map(tour: str | Path, resolution: float | None = None) -> NaiveMap:
     from ..geometry import se3_from_xyz_rpy
     from ..grid.fusion import SemanticGrid
     from ..io.bag import iter_records
+    from ..io.tour import TourManifest
     from ..io.tum import read_tum
     from ..io.yamlio import read_yaml
     from ..records import PaintedScan
@@ -421,8 +422,8 @@ def naive_map(tour: str | Path, resolution: float | None = None) -> NaiveMap:
     t_start = time.perf_counter()
     tour = Path(tour)
     cfg = load_model(SimConfig, read_yaml(tour / "config.yaml"), str(tour / "config.yaml"))
-    manifest = read_yaml(tour / "tour.yaml")
-    topic = str((manifest.get("topics") or {}).get("scan") or cfg.lidar.topic)
+    manifest = load_model(TourManifest, read_yaml(tour / "tour.yaml"), str(tour / "tour.yaml"))
+    topic = manifest.topics.get("scan") or cfg.lidar.topic
     t_base_lidar = se3_from_xyz_rpy(cfg.lidar.mount.xyz, cfg.lidar.mount.rpy)
     origin = t_base_lidar[:2, 3].copy()
     # evidence over the LiDAR's whole range

@@ -19,14 +19,16 @@ read back with :func:`load_world` (``semmap simulate --scenario my_world.yaml``)
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
+from ..config import load_model
 from ..errors import ConfigError
 from ..io.yamlio import read_yaml
 from ..records import Mobility
@@ -52,6 +54,7 @@ __all__ = [
     "load_world",
     "world_to_dict",
     "world_from_dict",
+    "WorldFile",
 ]
 
 RGB = tuple[int, int, int]
@@ -440,10 +443,6 @@ def cabinet(oid: int, pose: Sequence[float], w: float = 1.0, d: float = 0.5, h: 
 # YAML round trip
 
 
-def _rgb(v: Sequence[int]) -> RGB:
-    return (int(v[0]), int(v[1]), int(v[2]))
-
-
 def world_to_dict(world: World) -> dict[str, Any]:
     """A plain dict of the world, for ``world.yaml``."""
 
@@ -498,78 +497,147 @@ def world_to_dict(world: World) -> dict[str, Any]:
     }
 
 
-def _positive(d: dict[str, Any], key: str, default: float) -> float:
-    v = float(d.get(key, default))
-    if not (math.isfinite(v) and v > 0):
-        raise ConfigError(f"{key} must be a positive number of metres, got {d.get(key)!r}")
+# The schema of ``world.yaml``. Pydantic turns a ValueError into one line naming the file and the field
+# (semmap.config.load_model); the records (Part, Person, World) check shapes and ids, and their
+# ConfigError becomes a ValueError at the object, part or person it is about.
+
+_Point = tuple[float, float]
+_Colour = tuple[Annotated[int, Field(ge=0, le=255)], Annotated[int, Field(ge=0, le=255)],
+                Annotated[int, Field(ge=0, le=255)]]
+
+
+def _null_is_empty(v: Any) -> Any:
+    return [] if v is None else v
+
+
+def _mobility(v: Any) -> Mobility:
+    return v if isinstance(v, Mobility) else Mobility.parse(str(v))
+
+
+def _whole(v: Any) -> Any:
+    if isinstance(v, bool):  # an int to pydantic, but no number of laps
+        raise ValueError(f"must be a whole number of at least 1, got {v!r}")
     return v
+
+
+def _checked(build: Callable[[], Any]) -> Any:
+    """A record built from validated fields; its own check's ConfigError as the ValueError pydantic reports."""
+    try:
+        return build()
+    except ConfigError as exc:
+        raise ValueError(str(exc)) from None
+
+
+class _WorldModel(BaseModel):
+    # a typo in a hand-written world is an error that names the key, as in a config file
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class PartFile(_WorldModel):
+    """One convex part of an object: a floor polygon extruded over ``z`` = [z_min, z_max]."""
+
+    polygon: list[_Point]
+    z: tuple[float, float]
+    color: _Colour = (160, 160, 160)
+    _part: Part = PrivateAttr()
+
+    @model_validator(mode="after")
+    def _record(self) -> PartFile:
+        self._part = _checked(lambda: Part(np.asarray(self.polygon, dtype=np.float64), self.z[0], self.z[1],
+                                           self.color))
+        return self
+
+    @property
+    def part(self) -> Part:
+        return self._part
+
+
+class ObjectFile(_WorldModel):
+    """An object: its id (> 0, unique), class name, mobility and parts."""
+
+    id: int
+    name: str | None = None
+    cls: str = Field(alias="class")
+    mobility: Annotated[Mobility, BeforeValidator(_mobility)]
+    parts: list[PartFile]
+
+    @property
+    def world_object(self) -> WorldObject:
+        return WorldObject(self.id, self.name or f"obj_{self.id}", self.cls, self.mobility,
+                           tuple(p.part for p in self.parts))
+
+
+class PersonFile(_WorldModel):
+    """A person walking a waypoint loop (see :class:`Person`)."""
+
+    id: int
+    name: str | None = None
+    waypoints: list[_Point]
+    speed: float = Field(1.2, gt=0)
+    pauses: list[tuple[int, float]] = []
+    phase_s: float = 0.0
+    loop: bool = True
+    shirt: _Colour = (180, 40, 40)
+    trousers: _Colour = (40, 45, 70)
+    skin: _Colour = (224, 172, 140)
+    leg_radius: float = Field(0.065, gt=0)
+    hip_half_width: float = Field(0.1, gt=0)
+    stride: float = Field(0.32, gt=0)
+    height: float = Field(1.72, gt=0)
+    _person: Person = PrivateAttr()
+
+    _nulls = field_validator("pauses", mode="before")(_null_is_empty)
+
+    @model_validator(mode="after")
+    def _record(self) -> PersonFile:
+        fields = self.model_dump(exclude={"id", "name", "waypoints", "pauses"})
+        self._person = _checked(lambda: Person(
+            id=self.id, name=self.name or f"person_{self.id}", waypoints=np.asarray(self.waypoints, dtype=np.float64),
+            pauses=tuple(self.pauses), **fields))
+        return self
+
+    @property
+    def person(self) -> Person:
+        return self._person
+
+
+class WorldFile(_WorldModel):
+    """``world.yaml``: what :func:`world_to_dict` writes and :func:`load_world` reads."""
+
+    name: str = "world"
+    description: str = ""
+    frame_id: str = "world"
+    ceiling_height: float = Field(2.6, gt=0)
+    start_yaw: float | None = None
+    duration_s: float | None = Field(None, gt=0, description="None: the time the route takes")
+    laps: Annotated[int, BeforeValidator(_whole), Field(ge=1)] = 1
+    route: list[_Point] = []
+    objects: list[ObjectFile] = []
+    people: list[PersonFile] = []
+    _world: World = PrivateAttr()
+
+    _nulls = field_validator("route", "objects", "people", mode="before")(_null_is_empty)
+
+    @model_validator(mode="after")
+    def _record(self) -> WorldFile:
+        self._world = _checked(lambda: World(
+            name=self.name, description=self.description, frame_id=self.frame_id,
+            ceiling_height=self.ceiling_height, start_yaw=self.start_yaw, duration_s=self.duration_s, laps=self.laps,
+            route=np.asarray(self.route, dtype=np.float64).reshape(-1, 2),
+            objects=tuple(o.world_object for o in self.objects), people=tuple(p.person for p in self.people)))
+        return self
+
+    @property
+    def world(self) -> World:
+        return self._world
 
 
 def world_from_dict(data: Any, source: str = "<world>") -> World:
     """Build a :class:`World` from a dict as written by :func:`world_to_dict`."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a world file must be a mapping")
-    allowed = {"name", "description", "frame_id", "ceiling_height", "start_yaw", "duration_s", "laps",
-               "route", "objects", "people"}
-    unknown = set(data) - allowed
-    if unknown:
-        raise ConfigError(f"{source}: unknown key(s) {sorted(unknown)}")
-    try:
-        objects = []
-        for i, o in enumerate(data.get("objects") or []):
-            where = f"{source}: objects[{i}]"
-            try:
-                mob = Mobility.parse(str(o["mobility"]))
-                parts = tuple(
-                    Part(np.asarray(p["polygon"], dtype=np.float64), float(p["z"][0]), float(p["z"][1]),
-                         _rgb(p.get("color", (160, 160, 160))))
-                    for p in o["parts"]
-                )
-                objects.append(WorldObject(int(o["id"]), str(o.get("name", f"obj_{o['id']}")),
-                                           str(o["class"]), mob, parts))
-            except ConfigError as exc:
-                raise ConfigError(f"{where}: {exc}") from None
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
-                raise ConfigError(f"{where}: malformed ({exc!r})") from None
-        people = []
-        for i, p in enumerate(data.get("people") or []):
-            try:
-                people.append(Person(
-                    id=int(p["id"]), name=str(p.get("name", f"person_{p['id']}")),
-                    waypoints=np.asarray(p["waypoints"], dtype=np.float64),
-                    speed=float(p.get("speed", 1.2)),
-                    pauses=tuple((int(a), float(b)) for a, b in p.get("pauses", [])),
-                    phase_s=float(p.get("phase_s", 0.0)), loop=bool(p.get("loop", True)),
-                    shirt=_rgb(p.get("shirt", (180, 40, 40))), trousers=_rgb(p.get("trousers", (40, 45, 70))),
-                    skin=_rgb(p.get("skin", (224, 172, 140))),
-                    leg_radius=_positive(p, "leg_radius", 0.065), hip_half_width=_positive(p, "hip_half_width", 0.1),
-                    stride=_positive(p, "stride", 0.32), height=_positive(p, "height", 1.72),
-                ))
-            except ConfigError as exc:
-                raise ConfigError(f"{source}: people[{i}]: {exc}") from None
-            except (KeyError, TypeError, ValueError) as exc:
-                raise ConfigError(f"{source}: people[{i}]: malformed ({exc!r})") from None
-        sy = data.get("start_yaw")
-        dur = data.get("duration_s")
-        laps = data.get("laps", 1)
-        if isinstance(laps, float) and laps.is_integer():
-            laps = int(laps)
-        return World(
-            name=str(data.get("name", "world")),
-            description=str(data.get("description", "")),
-            frame_id=str(data.get("frame_id", "world")),
-            ceiling_height=float(data.get("ceiling_height", 2.6)),
-            start_yaw=None if sy is None else float(sy),
-            duration_s=None if dur is None else float(dur),
-            laps=laps,
-            route=np.asarray(data.get("route") or np.zeros((0, 2)), dtype=np.float64),
-            objects=tuple(objects),
-            people=tuple(people),
-        )
-    except ConfigError:
-        raise
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{source}: malformed world ({exc})") from None
+    world: World = load_model(WorldFile, data, source).world
+    return world
 
 
 def load_world(path: str | Path) -> World:

@@ -48,19 +48,19 @@ from ..records import Calibration, CameraIntrinsics
 from .yamlio import read_yaml, write_yaml
 
 __all__ = [
-    "write_calibration",
-    "read_calibration",
-    "calibration_to_dict",
+    "CalibrationFile",
+    "CameraFile",
+    "IntrinsicsFile",
+    "RosCameraInfoFile",
     "calibration_from_dict",
-    "intrinsics_to_dict",
+    "calibration_to_dict",
     "intrinsics_from_dict",
-    "write_intrinsics",
+    "intrinsics_to_dict",
+    "read_calibration",
     "read_intrinsics",
     "read_intrinsics_report",
-    "IntrinsicsFile",
-    "CameraFile",
-    "CalibrationFile",
-    "RosCameraInfoFile",
+    "write_calibration",
+    "write_intrinsics",
 ]
 
 _MAX_IMAGE_PX = 100_000  # wider or taller than any camera: a wrong number, not a camera

@@ -27,8 +27,15 @@ from .messages import camera_info_from_msg, odometry_from_msg, scan_from_msg, tr
 from .tf import TfTree
 from .topics import Topics, pick_topics
 
-__all__ = ["Tour", "Topics", "TourManifest", "open_tour", "load_build_config", "resolve_topics",
-           "read_tour_manifest"]
+__all__ = [
+    "Topics",
+    "Tour",
+    "TourManifest",
+    "load_build_config",
+    "open_tour",
+    "read_tour_manifest",
+    "resolve_topics",
+]
 
 log = logging.getLogger(__name__)
 
@@ -173,12 +180,10 @@ def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], conf
         if tree is None:
             tree = TfTree()
             for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
-                n = 0
-                for _, _, msg in src.messages([tf_topic]):
+                for n, (_, _, msg) in enumerate(src.messages([tf_topic]), start=1):
                     for _, parent, child, mat in transforms_from_msg(msg, tf_topic):
                         if tf_topic == topics.tf_static or child not in tree:
                             tree.add(parent, child, mat)
-                    n += 1
                     if tf_topic != topics.tf_static and n > 200:  # /tf: a first look is enough
                         break
         return tree

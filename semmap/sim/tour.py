@@ -66,7 +66,7 @@ from .scenarios import Scenario, get_scenario
 from .sensors import CameraSim, LidarSim
 from .world import World, load_world, world_to_dict
 
-__all__ = ["SimulationResult", "simulate", "resolve_scenario", "effective_config"]
+__all__ = ["SimulationResult", "effective_config", "resolve_scenario", "simulate"]
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +184,8 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     odom = simulate_odometry(traj, cfg.odometry, rng_odom)
 
     # object table: world objects, then people; rows index instance id, class and mobility
-    rows = [(o.id, o.cls, o.mobility) for o in world.objects] + [(p.id, "person", Mobility.DYNAMIC) for p in world.people]
+    rows = ([(o.id, o.cls, o.mobility) for o in world.objects]
+            + [(p.id, "person", Mobility.DYNAMIC) for p in world.people])
     class_names = sorted({c for _, c, _ in rows})
     row_instance = np.array([r[0] for r in rows], np.int32)
     row_class = np.array([class_names.index(r[1]) for r in rows], np.int16)
@@ -397,7 +398,8 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
         },
         "label_classes": cfg.camera.label_classes,
         "message_counts": counts,
-        "odometry_error": {"scale": round(float(odom.scale_error), 5), "yaw_scale": round(float(odom.yaw_scale_error), 5),
+        "odometry_error": {"scale": round(float(odom.scale_error), 5),
+                           "yaw_scale": round(float(odom.yaw_scale_error), 5),
                            "yaw_drift_deg_per_m": round(math.degrees(float(odom.yaw_drift_rad_per_m)), 4)},
         "min_clearance_m": round(clearance, 3),
         "min_people_clearance_m": round(people_gap, 3) if math.isfinite(people_gap) else None,

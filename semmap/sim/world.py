@@ -35,26 +35,26 @@ from ..records import Mobility
 
 __all__ = [
     "Part",
-    "WorldObject",
     "Person",
     "World",
-    "rect",
-    "circle",
-    "place",
-    "wall",
-    "pillar",
-    "chair",
-    "table",
-    "bed",
-    "couch",
-    "potted_plant",
-    "screen",
-    "monitor",
-    "cabinet",
-    "load_world",
-    "world_to_dict",
-    "world_from_dict",
     "WorldFile",
+    "WorldObject",
+    "bed",
+    "cabinet",
+    "chair",
+    "circle",
+    "couch",
+    "load_world",
+    "monitor",
+    "pillar",
+    "place",
+    "potted_plant",
+    "rect",
+    "screen",
+    "table",
+    "wall",
+    "world_from_dict",
+    "world_to_dict",
 ]
 
 RGB = tuple[int, int, int]
@@ -363,7 +363,8 @@ def pillar(oid: int, x: float, y: float, size: float = 0.4, height: float = 2.6,
     return WorldObject(oid, f"pillar_{oid}", "pillar", Mobility.STATIC, (Part(poly, 0.0, height, _PILLAR),))
 
 
-def _legs(w: float, d: float, leg: float, inset: float, top: float, color: RGB) -> list[tuple[NDArray[np.float64], float, float, RGB]]:
+def _legs(w: float, d: float, leg: float, inset: float, top: float,
+          color: RGB) -> list[tuple[NDArray[np.float64], float, float, RGB]]:
     xs = (-0.5 * w + inset + 0.5 * leg, 0.5 * w - inset - 0.5 * leg)
     ys = (-0.5 * d + inset + 0.5 * leg, 0.5 * d - inset - 0.5 * leg)
     return [(rect(x, y, leg, leg), 0.0, top, color) for x in xs for y in ys]
@@ -396,10 +397,7 @@ def table(oid: int, pose: Sequence[float], w: float = 1.4, d: float = 0.8,
 def bed(oid: int, pose: Sequence[float], w: float = 1.0, d: float = 2.1, solid: bool = False) -> WorldObject:
     """A bed, headboard at +y: a hospital bed on wheeled legs with a frame and mattress from 0.32 m,
     or (``solid``) a divan whose base reaches the floor, so a 2D LiDAR sees its whole outline."""
-    if solid:
-        parts = [(rect(0, 0, w, d), 0.0, 0.3, _FABRIC_GREY)]
-    else:
-        parts = _legs(w, d, 0.07, 0.05, 0.32, _METAL)
+    parts = [(rect(0, 0, w, d), 0.0, 0.3, _FABRIC_GREY)] if solid else _legs(w, d, 0.07, 0.05, 0.32, _METAL)
     parts.append((rect(0, 0, w, d), 0.32, 0.6, _MATTRESS))
     parts.append((rect(0, 0.5 * d - 0.03, w, 0.06), 0.32, 1.05, _METAL))
     return _obj(oid, "bed", Mobility.SEMI_STATIC, pose, parts)

@@ -5,6 +5,7 @@ import copy
 import numpy as np
 import pytest
 import yaml
+from file_errors import DROP, assert_one_line_error, set_key
 
 from semmap.calib.synth import sim_calibration_truth, sim_intrinsics
 from semmap.errors import ConfigError
@@ -98,17 +99,6 @@ ROS_INFO = {"image_width": 640, "image_height": 480, "camera_name": "front",
             "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.114, 0.193, -0.0027, 0.0037, -1.095]}}
 
 
-def _set(data, key, value):
-    *parents, leaf = key.split(".")
-    for p in parents:
-        data = data[p]
-    if value is _DROP:
-        del data[leaf]
-    else:
-        data[leaf] = value
-
-
-_DROP = object()
 _NOT_RIGID = [[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
 _FAR = [[1.0, 0, 0, 420.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
 
@@ -120,7 +110,7 @@ _FAR = [[1.0, 0, 0, 420.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
     ("intrinsics.model", "kannala", "intrinsics.model: Input should be 'pinhole' or 'fisheye'"),
     ("intrinsics.K", [[600.0, 0, 320], [0, 600, 240]], r"intrinsics.K: must be a 3x3 matrix, got shape \(2, 3\)"),
     ("intrinsics.K", [[-600.0, 0, 320], [0, 600, 240], [0, 0, 1]], "intrinsics: K must have positive focal lengths"),
-    ("intrinsics.K", _DROP, "intrinsics.K: Field required"),
+    ("intrinsics.K", DROP, "intrinsics.K: Field required"),
     ("intrinsics.D", [0.1, 0.0, 0.0], "intrinsics: pinhole distortion needs 4, 5, 8, 12 or 14 coefficients, got 3"),
     ("intrinsics.D", "none", "intrinsics.D: must be a list of numbers, got str"),
     ("intrinsics", [640, 480], r"intrinsics: must be a mapping \(model, width, height, K, D\)"),
@@ -137,16 +127,12 @@ def test_a_bad_field_of_a_calibration_file_is_one_line_naming_the_file_and_the_f
     data = yaml.safe_load(good.read_text())
     if key == "T_cam_lidar" and value is _FAR:
         del data["T_lidar_cam"]
-    _set(data, key, value)
-    path = tmp_path / "calibration.yaml"
-    path.write_text(yaml.safe_dump(data))
-    with pytest.raises(ConfigError, match=message) as err:
-        read_calibration(path)
-    assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+    set_key(data, key, value)
+    assert_one_line_error(read_calibration, tmp_path / "calibration.yaml", message, data)
 
 
 @pytest.mark.parametrize("key, value, message", [
-    ("image_width", _DROP, "image_width: Field required"),
+    ("image_width", DROP, "image_width: Field required"),
     ("image_height", 1e6, "image_height: must be between 1 and 100000 pixels"),
     ("camera_matrix.data", [519.3, 0, 331.1, 0, 518.9, 229.4, 0, 1], "camera_matrix.data: must have 9 numbers, got 8"),
     ("camera_matrix", [519.3, 0, 331.1], r"camera_matrix: must be a mapping \(with 'data'\)"),
@@ -158,12 +144,8 @@ def test_a_bad_field_of_a_calibration_file_is_one_line_naming_the_file_and_the_f
 def test_a_bad_field_of_a_ros_camera_info_file_is_one_line_naming_the_file_and_the_field(tmp_path, key, value,
                                                                                           message):
     data = copy.deepcopy(ROS_INFO)
-    _set(data, key, value)
-    path = tmp_path / "ost.yaml"
-    path.write_text(yaml.safe_dump(data))
-    with pytest.raises(ConfigError, match=message) as err:
-        read_intrinsics(path)
-    assert str(err.value).startswith(f"{path}: ") and "\n" not in str(err.value)
+    set_key(data, key, value)
+    assert_one_line_error(read_intrinsics, tmp_path / "ost.yaml", message, data)
 
 
 def test_unknown_keys_and_defaults_of_a_calibration_file(tmp_path):
@@ -181,7 +163,7 @@ def test_unknown_keys_and_defaults_of_a_calibration_file(tmp_path):
     assert read_intrinsics_report(path) == {"rms_px": 0.2, "lens": "wide"}
 
     for key in ("camera_frame", "lidar_frame", "intrinsics.D", "T_lidar_cam"):
-        _set(data, key, _DROP)
+        set_key(data, key, DROP)
     data["intrinsics"]["model"] = "fisheye"
     path.write_text(yaml.safe_dump(data))
     back = read_calibration(path)

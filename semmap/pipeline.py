@@ -3,7 +3,7 @@
 Data flows one way, one scan at a time, so memory does not grow with the tour:
 
     bag ─► scans + odometry ───────────────┐   (this process)
-    bag ─► camera frames ─► segmenter ─────┤   (frame worker process; raw label images: this process)
+    bag ─► camera images ─► segmenter ─────┤   (image worker process; raw label images: this process)
                                            ▼
            painter (deskew, sync to the image, project, label → mobility)   (this process)
                                            ▼
@@ -54,9 +54,9 @@ from .mapfolder.writer import MAP_FOLDER_VERSION, BuildOutcome, write_map_folder
 from .paint.painter import Painter
 from .paint.stream import ScanStream, open_build_tour, tour_class_names
 from .segment.base import backend_consumes
-from .segment.frames import FrameSource, InProcessFrames
+from .segment.images import ImageSource, InProcessImages
 from .version import __version__
-from .workers import FrameWorker, InProcessMapper, Mapper, MapperResult, MapperWorkers
+from .workers import ImageWorker, InProcessMapper, Mapper, MapperResult, MapperWorkers
 
 __all__ = ["BuildResult", "build"]
 
@@ -117,7 +117,7 @@ class _Run:
     result: MapperResult
     trace: _Trace
     timers: _Timers
-    frame_counts: dict[str, Any]
+    image_counts: dict[str, Any]
     loop_s: float
     cpu_s: dict[str, float]
     scans_without_image: int
@@ -133,7 +133,7 @@ class _Run:
                 "bad_scans": c.bad_scans, "scans_out_of_order": c.scans_out_of_order}
 
 
-def _frames_are_light(cfg: BuildConfig, msgtype: str) -> bool:
+def _images_are_light(cfg: BuildConfig, msgtype: str) -> bool:
     """Raw label images recorded in the bag: nothing to decode or infer, so they are read in the mapping
     process. A worker process would cost more than it saves: each frame copied into shared memory and
     handed over, against a view of the bag's bytes here (the office tour builds faster this way from
@@ -170,7 +170,7 @@ def build(
         tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
         cfg = _effective_config(tinfo, cfg)
         _log_detected(tinfo, cfg)
-        if tinfo.topics.frames is None:
+        if tinfo.topics.image is None:
             log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
         class_names = tour_class_names(tinfo, cfg)
         check_grid_memory(cfg.grid, cfg.registration.max_range, len(class_names))
@@ -213,38 +213,38 @@ class _KeptWarnings(logging.Handler):
 def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ...],
          progress: ProgressFn | None) -> _Run:
     """Start the stages, stream the tour through them, and stop them, whatever happens."""
-    frames: FrameSource | None = None
+    images: ImageSource | None = None
     mapper: Mapper | None = None
     try:
-        msgtype = tinfo.types.get(tinfo.topics.frames or "", "")
+        msgtype = tinfo.types.get(tinfo.topics.image or "", "")
         if cfg.workers:  # started first: they load their libraries while the rest is set up
             mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
         else:
             mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
-        if tinfo.topics.frames is not None:
-            if cfg.workers and not _frames_are_light(cfg, msgtype):
+        if tinfo.topics.image is not None:
+            if cfg.workers and not _images_are_light(cfg, msgtype):
                 intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
                 shape = (intr.height, intr.width) if intr is not None else None
-                frames = FrameWorker(tinfo.bag, tinfo.topics.frames, cfg.segmentation, shape)
+                images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape)
             else:
-                frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, cfg.segmentation)
+                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation)
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
                           cfg.grid.no_return_range)
-        for part in (frames, mapper):  # workers load their libraries before the clock starts
+        for part in (images, mapper):  # workers load their libraries before the clock starts
             if part is not None:
                 part.wait_ready()
-        return _stream(tinfo, bag, cfg, painter, frames, mapper, progress)
+        return _stream(tinfo, bag, cfg, painter, images, mapper, progress)
     finally:
-        for stage in (frames, mapper):
+        for stage in (images, mapper):
             if stage is not None:
                 stage.close()
 
 
-def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, frames: FrameSource | None,
+def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, images: ImageSource | None,
             mapper: Mapper, progress: ProgressFn | None) -> _Run:
     """The streaming loop: read scans and odometry, paint, hand over; then wait for the mapping stages."""
-    stream = ScanStream(tinfo, cfg.sync, frames, progress, bag=bag)
+    stream = ScanStream(tinfo, cfg.sync, images, progress, bag=bag)
     trace, timers = _Trace(), _Timers()
     no_image = no_odom = 0
     n_classes = len(painter.class_names)
@@ -257,7 +257,7 @@ def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, frame
         try:
             res = painter.paint(item.scan, item.odometry, item.segmentation)
         except BagError as exc:  # a label image that does not fit the calibration
-            raise BagError(f"{tinfo.bag}: {tinfo.topics.frames}: {exc}") from None
+            raise BagError(f"{tinfo.bag}: {tinfo.topics.image}: {exc}") from None
         t1 = time.perf_counter()
         mapper.push(res.painted, res.odom_pose)
         timers.paint += t1 - t0
@@ -275,13 +275,13 @@ def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, frame
     result = mapper.finish()
     timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
     loop_s = time.perf_counter() - t_loop
-    frame_counts = dict(frames.counts) if frames is not None else {"frames": 0, "bad_frames": 0}
+    image_counts = dict(images.counts) if images is not None else {"images": 0, "bad_images": 0}
     cpu_s = {"main": round(time.process_time() - cpu_loop, 3), **result.cpu_s}
-    if "cpu_s" in frame_counts:
-        cpu_s["frames"] = frame_counts["cpu_s"]
+    if "cpu_s" in image_counts:
+        cpu_s["images"] = image_counts["cpu_s"]
     timers.wait_images = stream.wait_images_s
     timers.read = max(0.0, loop_s - timers.paint - timers.hand_over - timers.wait_images)
-    return _Run(stream, painter, result, trace, timers, frame_counts, loop_s, cpu_s, no_image, no_odom,
+    return _Run(stream, painter, result, trace, timers, image_counts, loop_s, cpu_s, no_image, no_odom,
                 mobility_hits, class_hits)
 
 
@@ -316,8 +316,8 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             bag=str(tinfo.bag),
             scenario=tinfo.manifest.get("scenario"),
             duration_s=round(span_s, 3),
-            topics=TourTopics(scan=tinfo.topics.scan, frames=tinfo.topics.frames,
-                              frames_kind=tinfo.topics.frames_kind, odometry=tinfo.topics.odometry,
+            topics=TourTopics(scan=tinfo.topics.scan, image=tinfo.topics.image,
+                              image_kind=tinfo.topics.image_kind, odometry=tinfo.topics.odometry,
                               tf_static=tinfo.topics.tf_static),
             frames=TourFrames(base=tinfo.base_frame, lidar=tinfo.lidar_frame, map="map"),
             T_base_lidar=np.round(tinfo.T_base_lidar, 9).tolist(),
@@ -327,8 +327,8 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
         messages=MessagesSummary(read=run.stream.read_stats.read, skipped=run.stream.read_stats.skipped,
                                  odometry_out_of_order=(run.stream.odometry.out_of_order
                                                         if run.stream.odometry is not None else 0)),
-        counts=CountsSummary(**run.counts, frames=run.frame_counts.get("frames", 0),
-                             bad_frames=run.frame_counts.get("bad_frames", 0)),
+        counts=CountsSummary(**run.counts, images=run.image_counts.get("images", 0),
+                             bad_images=run.image_counts.get("bad_images", 0)),
         painting=PaintingSummary(
             class_list=getattr(cfg.segmentation, "class_list", None) if class_names else None,
             backend=cfg.segmentation.backend if class_names else None,
@@ -365,7 +365,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             wait_images=round(t.wait_images, 3), clean=round(t.clean, 3), write=0.0,
             register_busy=round(run.result.register_busy_s, 3), fuse_busy=round(run.result.fuse_busy_s, 3),
             loop=round(loop, 3), total=0.0,
-            segmentation_busy=round(run.frame_counts.get("segment_ms", 0) / 1000.0, 3), workers=cfg.workers),
+            segmentation_busy=round(run.image_counts.get("segment_ms", 0) / 1000.0, 3), workers=cfg.workers),
         cpu_s={**run.cpu_s, "total": round(sum(run.cpu_s.values()), 3),
                "per_scan_ms": round(1000 * sum(run.cpu_s.values()) / n, 3) if n else None},
         throughput=ThroughputSummary(
@@ -375,8 +375,8 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
         ),
         peak_rss_mb=0.0,  # the writer fills it in, at the end
         peak_rss_mb_workers={**run.result.peak_rss_mb,
-                             **({"frames": run.frame_counts["peak_rss_mb"]}
-                                if "peak_rss_mb" in run.frame_counts else {})},
+                             **({"images": run.image_counts["peak_rss_mb"]}
+                                if "peak_rss_mb" in run.image_counts else {})},
         files=[],
     )
     return BuildOutcome(config=cfg, class_names=class_names, layers=layers, cleaned=cleaned, stamps_ns=stamps,
@@ -399,8 +399,8 @@ def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:
         "scan": tinfo.topics.scan,
         "odometry": tinfo.topics.odometry or "none",
         "camera_info": tinfo.topics.camera_info,
-        **({"labels": tinfo.topics.frames} if tinfo.topics.frames_kind == "labels" else {}),
-        **({"image": tinfo.topics.frames} if tinfo.topics.frames_kind == "rgb" else {}),
+        **({"labels": tinfo.topics.image} if tinfo.topics.image_kind == "labels" else {}),
+        **({"image": tinfo.topics.image} if tinfo.topics.image_kind == "rgb" else {}),
     })
     frames = cfg.frames.model_copy(update={"base": tinfo.base_frame, "lidar": tinfo.lidar_frame})
     update: dict[str, Any] = {"topics": topics, "frames": frames, "registration": reg}
@@ -413,14 +413,14 @@ def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:
     """``-v``: what was found in the data, and where it came from."""
     t = tinfo.topics
     log.info("tour %s: scans %s (frame %s), odometry %s, %s %s, camera_info %s", tinfo.bag, t.scan,
-             tinfo.lidar_frame, t.odometry or "none", "label images" if t.frames_kind == "labels" else "images",
-             t.frames or "none", t.camera_info or "none")
+             tinfo.lidar_frame, t.odometry or "none", "label images" if t.image_kind == "labels" else "images",
+             t.image or "none", t.camera_info or "none")
     xyz = np.round(tinfo.T_base_lidar[:3, 3], 3).tolist()
     yaw = float(np.degrees(np.arctan2(tinfo.T_base_lidar[1, 0], tinfo.T_base_lidar[0, 0])))
     log.info("T_base_lidar (%s -> %s) from %s: xyz %s m, yaw %.1f deg", tinfo.base_frame, tinfo.lidar_frame,
              tinfo.T_base_lidar_source, xyz, yaw)
     if tinfo.calibration is not None:
-        log.info("calibration %s: %dx%d camera, camera frame %s", tinfo.calibration_path or "from the bag",
+        log.info("calibration %s: %dx%d camera, camera image %s", tinfo.calibration_path or "from the bag",
                  tinfo.calibration.intrinsics.width, tinfo.calibration.intrinsics.height,
                  tinfo.calibration.camera_frame)
     log.info("registration %s; segmentation backend %s; scans paired with images within %.3f s",
@@ -434,17 +434,17 @@ def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
         log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
                     "driver reports 'nothing seen' this way (Hokuyo URG does), set "
                     "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
-    if tinfo.topics.frames is None:
+    if tinfo.topics.image is None:
         return
     n = run.stream.counts.scans
     with_image = n - run.scans_without_image
-    frames = run.frame_counts.get("frames", 0)
-    log.info("%d of %d scans were paired with an image (%d frames read on %s); %.1f %% of their returns fell "
-             "into the image", with_image, n, frames, tinfo.topics.frames,
+    images = run.image_counts.get("images", 0)
+    log.info("%d of %d scans were paired with an image (%d images read on %s); %.1f %% of their returns fell "
+             "into the image", with_image, n, images, tinfo.topics.image,
              100 * ps.points_in_view / max(ps.points_paired, 1))
     if with_image < 0.1 * n:
-        if frames == 0:
-            why = f"no frame on {tinfo.topics.frames} could be read or segmented"
+        if images == 0:
+            why = f"no frame on {tinfo.topics.image} could be read or segmented"
         elif run.stream.counts.unpaired_offsets_ns:
             off = float(np.median(run.stream.counts.unpaired_offsets_ns)) * 1e-9
             why = (f"the nearest image was typically {off:.3f} s from a scan, more than sync.max_image_offset "
@@ -452,7 +452,7 @@ def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
                    f"the camera much slower than the LiDAR?")
         else:
             why = "the images do not overlap the scans in time"
-        log.warning("only %d of %d scans were paired with an image on %s: %s", with_image, n, tinfo.topics.frames,
+        log.warning("only %d of %d scans were paired with an image on %s: %s", with_image, n, tinfo.topics.image,
                     why)
         return
     if ps.points_paired and ps.points_in_view < 0.01 * ps.points_paired:

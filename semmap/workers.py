@@ -1,18 +1,18 @@
 """Worker processes around the mapping core.
 
-* **Frames** (:class:`FrameWorker`): a process that reads the camera topic from the bag,
+* **Images** (:class:`ImageWorker`): a process that reads the camera topic from the bag,
   decodes the images and runs the segmenter, handing segmentations back through shared
   memory. Image decoding and model inference never share a process with mapping (the
   research separated them after segfaults in continuous CUDA runs), and a model that is
   slower than mapping no longer adds its time to it. Raw label images recorded in the bag
   have nothing to decode or infer: the build reads them in its own process
-  (:class:`InProcessFrames`), where a frame is a view of the bag's bytes, not a copy.
+  (:class:`InProcessImages`), where an image is a view of the bag's bytes, not a copy.
 * **Mapping** (:class:`MapperWorkers`): two chained processes, registration then fusion;
   painted scans stream in, the trajectory and the grid layers come back at the end. With
   painting in the calling process the three stages share the machine's cores.
 
-Both have in-process twins (:class:`InProcessFrames`, :class:`InProcessMapper`) with the
-same methods (:class:`FrameSource`, :class:`Mapper`), used when ``workers: false``
+Both have in-process twins (:class:`InProcessImages`, :class:`InProcessMapper`) with the
+same methods (:class:`ImageSource`, :class:`Mapper`), used when ``workers: false``
 (debugging) and by tests.
 
 **Whatever happens to a process, nothing hangs and nothing is left behind.**
@@ -27,7 +27,7 @@ same methods (:class:`FrameSource`, :class:`Mapper`), used when ``workers: false
   :class:`~semmap.errors.SemmapError` is raised again as itself.
 * Workers ignore SIGINT, SIGTERM and SIGHUP (Ctrl-C, a closed terminal or systemd reach the
   whole process group; the caller decides and stops them), die with their parent on Linux
-  (``PR_SET_PDEATHSIG``), and are named in ``ps``/``top`` (``semmap-frames``,
+  (``PR_SET_PDEATHSIG``), and are named in ``ps``/``top`` (``semmap-images``,
   ``semmap-register``, ``semmap-fusion``).
 * ``close`` kills the workers, joins them, closes the pipes and unlinks the shared memory,
   with SIGINT, SIGTERM and SIGHUP held back until it is done.
@@ -61,15 +61,15 @@ from .config import GridConfig, RegistrationConfig, SegmentationConfig, segmenta
 from .errors import InternalError, SemmapError, WorkerError
 from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
-from .segment.frames import FrameReader, FrameSource, InProcessFrames
+from .segment.images import ImageReader, ImageSource, InProcessImages
 
 if TYPE_CHECKING:
     from .grid import GridLayers
 
 __all__ = [
-    "FrameSource",
-    "FrameWorker",
-    "InProcessFrames",
+    "ImageSource",
+    "ImageWorker",
+    "InProcessImages",
     "InProcessMapper",
     "Mapper",
     "MapperResult",
@@ -256,7 +256,7 @@ def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, in
 
 @dataclass
 class _Worker:
-    stage: str  # "frames", "registration", "fusion": the stage errors name
+    stage: str  # "images", "registration", "fusion": the stage errors name
     proc: Any
     inbox: Connection  # what the worker sends the caller
     error: tuple[str, str, str, str] | None = None  # what it reported, if it failed
@@ -432,15 +432,15 @@ class _Workers:
 # ---------------------------------------------------------------------------------------
 # Frames: decoding and segmentation
 
-def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, seg_cfg: dict[str, Any],
+def _images_body(out: Connection, freed: Connection, bag: str, topic: str, seg_cfg: dict[str, Any],
                  shm_name: str | None, shape: tuple[int, int] | None) -> None:
-    """The frame worker: segment every frame of ``topic``; labels go into free shared-memory slots
+    """The image worker: segment every image of ``topic``; labels go into free shared-memory slots
     (the caller hands each back on ``freed``), or through the pipe when none is free."""
     from multiprocessing import shared_memory
 
-    counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+    counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
-    frames: FrameReader | None = None
+    images: ImageReader | None = None
     try:
         slots = None
         free: list[int] = []
@@ -448,10 +448,10 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, seg_c
             n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
             free = list(range(n))
-        frames = FrameReader(Path(bag), topic, segmentation_config(seg_cfg), counts)
+        images = ImageReader(Path(bag), topic, segmentation_config(seg_cfg), counts)
         out.send(("ready",))
         cpu0 = time.process_time()
-        for seg in frames:
+        for seg in images:
             while freed.poll():  # EOF here (the caller is gone) raises EOFError
                 free.append(freed.recv())
             if slots is not None and seg.label.shape == slots.shape[1:] and free:
@@ -459,23 +459,23 @@ def _frames_body(out: Connection, freed: Connection, bag: str, topic: str, seg_c
                 slots[i] = seg.label
                 out.send(("slot", seg.stamp_ns, i, seg.names))
             else:  # no free slot (the caller holds them all), or an image of another size: send it whole
-                out.send(("frame", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names))
+                out.send(("image", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names))
         counts["peak_rss_mb"] = round(peak_rss_mb(), 1)
         counts["cpu_s"] = round(time.process_time() - cpu0, 3)
         out.send(("done", counts))
     finally:
-        if frames is not None:
-            frames.close()
+        if images is not None:
+            images.close()
         if shm is not None:
             del slots
             shm.close()
 
 
-class FrameWorker:
+class ImageWorker:
     """Segmentations of a camera topic from a worker process.
 
     Label images travel through shared memory: a pool of ``n_slots`` image slots, each handed
-    back to the worker when the mapper no longer needs that frame (:meth:`release`), so nothing
+    back to the worker when the mapper no longer needs that image (:meth:`release`), so nothing
     large is copied between processes. When the caller holds every slot, the worker sends the
     next label through the pipe instead of waiting (a fast camera never deadlocks the two); the
     pipe's capacity bounds how far it runs ahead.
@@ -485,7 +485,7 @@ class FrameWorker:
                  shape: tuple[int, int] | None = None, n_slots: int = 12) -> None:
         from multiprocessing import shared_memory
 
-        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
+        self.counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
         self._done = False
         self._slot_of: dict[int, int] = {}
         self._shm = None
@@ -497,7 +497,7 @@ class FrameWorker:
                 self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
                 self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
             freed_r, self._freed = self._group.pipe(to_child=True)
-            self._worker = self._group.add("semmap-frames", "frames", _frames_body, freed_r, str(bag), topic,
+            self._worker = self._group.add("semmap-images", "images", _images_body, freed_r, str(bag), topic,
                                            seg_cfg.model_dump(mode="json"), self._shm.name if self._shm else None,
                                            shape)
             self._group.start()
@@ -509,7 +509,7 @@ class FrameWorker:
         """Block until the worker has loaded its segmenter (so start-up is not counted as work)."""
         msg = self._group.recv(self._worker)
         if msg[0] != "ready":
-            raise InternalError(f"the frames worker sent {msg[0]!r} before 'ready'")
+            raise InternalError(f"the images worker sent {msg[0]!r} before 'ready'")
 
     def next(self) -> Segmentation | None:
         if self._done:
@@ -521,14 +521,14 @@ class FrameWorker:
             seg = Segmentation(stamp, self._slots[i], names)  # a read-only view, no copy
             self._slot_of[id(seg)] = i
             return seg
-        if msg[0] == "frame":
+        if msg[0] == "image":
             _, stamp, label, names = msg
             return Segmentation(stamp, label, names)
         if msg[0] == "done":
             self.counts = msg[1]
             self._done = self._worker.finished = True
             return None
-        raise InternalError(f"the frames worker sent {msg[0]!r}")
+        raise InternalError(f"the images worker sent {msg[0]!r}")
 
     def release(self, seg: Segmentation) -> None:
         """The mapper is done with ``seg``: its slot may be reused."""

@@ -127,4 +127,4 @@ def test_a_build_opens_its_bag_once(short_tour, tmp_path, monkeypatch):
     opened.clear()
     res = build(short_tour.out, tmp_path / "map", overrides={"workers": False})
     assert res.summary.painting.scans_painted > 0
-    assert opened == [short_tour.bag, short_tour.bag]  # the tour, and its label images (InProcessFrames)
+    assert opened == [short_tour.bag, short_tour.bag]  # the tour, and its label images (InProcessImages)

@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -82,7 +83,7 @@ def test_ros2_tours_with_jpeg_images_and_mono8_labels(tmp_path, fmt):
     tour = simulate(world, tmp_path / "tour", fmt=fmt, seed=1,
                     config={"camera": {"image_format": "jpeg", "label_encoding": "mono8"}})
     res = build(tour.out, tmp_path / "map")
-    assert res.summary.tour.topics.frames == "/camera/labels"
+    assert res.summary.tour.topics.image == "/camera/labels"
     assert res.summary.painting.hits_by_mobility["dynamic"] > 50
     assert res.summary.painting.hits_by_class["person"] > 50
 
@@ -165,6 +166,28 @@ def test_load_map_reads_back_what_build_wrote(demo_map):
     assert m.config.registration.mode == "fused" and m.class_names[0] == "person"
 
 
+def test_load_map_reads_a_version_1_folder(demo_map, tmp_path):
+    """A map folder written before camera images were renamed (``map_folder_version`` 1, where they
+    were "frames"; tests/data/demo_summary_v1.json is the demo's summary from commit 9a59013) reads
+    back with version 2's names and the same numbers."""
+    import shutil
+
+    import semmap
+
+    folder = tmp_path / "m"
+    shutil.copytree(demo_map.out, folder)
+    v1 = json.loads((Path(__file__).parent / "data" / "demo_summary_v1.json").read_text())
+    assert v1["map_folder_version"] == 1 and "frames" in v1["counts"]
+    shutil.copy(Path(__file__).parent / "data" / "demo_summary_v1.json", folder / "summary.json")
+    m = semmap.load_map(folder)
+    assert m.summary.map_folder_version == 2
+    assert m.summary.counts.images == v1["counts"]["frames"] == 140
+    assert m.summary.counts.bad_images == v1["counts"]["bad_frames"] == 0
+    assert m.summary.tour.topics.image == "/camera/labels" and m.summary.tour.topics.image_kind == "labels"
+    assert m.summary.counts.scans == demo_map.summary.counts.scans and m.summary.map == demo_map.summary.map
+    assert json.loads(demo_map.summary.to_json())["counts"]["images"] == 140  # today's folders say "images"
+
+
 def test_load_map_refuses_another_layout_and_names_the_file(demo_map, tmp_path):
     import shutil
 
@@ -176,7 +199,7 @@ def test_load_map_refuses_another_layout_and_names_the_file(demo_map, tmp_path):
     summary = json.loads((folder / "summary.json").read_text())
     summary["map_folder_version"] = 99
     (folder / "summary.json").write_text(json.dumps(summary))
-    with pytest.raises(MapFolderError, match=r"summary.json: map_folder_version 99; this semmap reads version 1"):
+    with pytest.raises(MapFolderError, match=r"summary.json: map_folder_version 99; this semmap reads versions 1 to 2"):
         semmap.load_map(folder)
     summary["map_folder_version"] = 1
     (folder / "summary.json").write_text(json.dumps(summary))

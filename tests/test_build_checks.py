@@ -95,7 +95,7 @@ def test_config_yaml_rebuilds_the_same_map(tour, with_file, tmp_path):
     a, b = load_map(with_file.out), load_map(again.out)
     assert np.array_equal(a.layers.log_odds, b.layers.log_odds) and np.array_equal(a.layers.mobility, b.layers.mobility)
     assert (with_file.out / "map.pgm").read_bytes() == (again.out / "map.pgm").read_bytes()
-    assert b.summary.tour.topics.frames == "/camera/labels" and b.config == a.config
+    assert b.summary.tour.topics.image == "/camera/labels" and b.config == a.config
 
 
 def test_absurd_grid_memory_is_refused_before_any_work(tour, tmp_path, capsys):

@@ -23,10 +23,10 @@ import pytest
 
 from semmap.config import GridConfig, RegistrationConfig, TopicSegmentation
 from semmap.errors import InternalError
-from semmap.workers import FrameWorker, MapperWorkers
+from semmap.workers import ImageWorker, MapperWorkers
 
-WORKERS = ("semmap-frames", "semmap-register", "semmap-fusion")
-STAGE = {"semmap-frames": "frames", "semmap-register": "registration", "semmap-fusion": "fusion"}
+WORKERS = ("semmap-images", "semmap-register", "semmap-fusion")
+STAGE = {"semmap-images": "images", "semmap-register": "registration", "semmap-fusion": "fusion"}
 
 
 @pytest.fixture(scope="module")
@@ -190,7 +190,7 @@ def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, 
     out = tmp_path / "map"
     run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
     if moment == "start-up":  # the workers exist but are still loading their libraries
-        run.wait_for(lambda: run.worker("semmap-frames") is not None)
+        run.wait_for(lambda: run.worker("semmap-images") is not None)
     elif moment == "mid-build":
         run.wait_for_loop()
     else:  # the map folder is being written into its hidden folder
@@ -212,7 +212,7 @@ def test_memory_exhausted_in_fusion_is_an_error_not_a_hang(tour, tmp_path):
     bag, cfg = tour
     out = tmp_path / "map"
     run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
-    run.wait_for(lambda: run.worker("semmap-fusion") is not None and run.worker("semmap-frames") is not None)
+    run.wait_for(lambda: run.worker("semmap-fusion") is not None and run.worker("semmap-images") is not None)
     time.sleep(0.3)
     pid = run.worker("semmap-fusion")
     vm = int(next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines()
@@ -240,13 +240,13 @@ def test_a_bug_in_a_worker_is_reported_as_a_bug_with_its_traceback():
 
 def test_a_bug_in_the_frame_worker_is_reported_as_a_bug(tour):
     bag, _ = tour
-    frames = FrameWorker(bag / "demo.bag", "/scan", TopicSegmentation(), (480, 640))  # scans are not images
+    images = ImageWorker(bag / "demo.bag", "/scan", TopicSegmentation(), (480, 640))  # scans are not images
     try:
-        with pytest.raises(InternalError, match="in the frames worker: AttributeError"):
-            frames.wait_ready()
-            frames.next()
+        with pytest.raises(InternalError, match="in the images worker: AttributeError"):
+            images.wait_ready()
+            images.next()
     finally:
-        frames.close()
+        images.close()
 
 
 def test_cli_exit_code_70_and_worker_traceback_with_debug(monkeypatch, capsys):

@@ -93,7 +93,7 @@ def test_build_segment_and_check_pick_the_same_camera_topic(tmp_path, bright_bac
     bag = _bag(tmp_path / "two.bag", {"/camera/depth/image_raw": "depth", "/camera/image_raw": "rgb"})
     res = build(bag, tmp_path / "map", overrides={"workers": False, "segmentation": {"backend": "test-bright"},
                                                   "topics": {"odometry": "none"}})
-    assert res.summary.tour.topics.frames == "/camera/image_raw"
+    assert res.summary.tour.topics.image == "/camera/image_raw"
     assert res.summary.painting.scans_painted > 0
 
     assert main(["segment", str(bag), "--backend", "test-bright", "--out", str(tmp_path / "seg")]) == 0
@@ -127,7 +127,7 @@ def test_two_colour_cameras_are_one_error_naming_both_and_the_setting(tmp_path, 
     # named, the choice is the same everywhere
     res = build(bag, tmp_path / "map", overrides={"workers": False, "segmentation": {"backend": "test-bright"},
                                                   "topics": {"odometry": "none", "image": "/rear/image_raw"}})
-    assert res.summary.tour.topics.frames == "/rear/image_raw"
+    assert res.summary.tour.topics.image == "/rear/image_raw"
     assert main(["segment", str(bag), "--backend", "test-bright", "--topic", "/rear/image_raw", "--out",
                  str(tmp_path / "seg")]) == 0
     assert frame_from_bag(bag, image_topic="/rear/image_raw")[0].shape == (H, W, 3)

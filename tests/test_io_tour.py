@@ -81,9 +81,9 @@ TYPES = {
 
 def test_topics_are_detected_when_unambiguous(tmp_path):
     t = resolve_topics(BuildConfig(), TYPES, tmp_path, {}, consumes="labels")
-    assert (t.scan, t.odometry, t.frames) == ("/front/scan", "/wheel/odom", "/cam/segmentation/labels")
+    assert (t.scan, t.odometry, t.image) == ("/front/scan", "/wheel/odom", "/cam/segmentation/labels")
     t = resolve_topics(BuildConfig(), TYPES, tmp_path, {}, consumes="rgb")
-    assert t.frames == "/cam/color/image_raw/compressed" and t.frames_kind == "rgb"
+    assert t.image == "/cam/color/image_raw/compressed" and t.image_kind == "rgb"
 
 
 def test_ambiguous_or_missing_topics_name_the_candidates(tmp_path):

@@ -48,7 +48,7 @@ def _scan(lidar, ranges, stamp_ns, lcfg):
 
 
 def _capture(ps, labels):
-    """One scan and one camera frame from the origin: (T_base_lidar, calibration, frame, scan, the
+    """One scan and one camera image from the origin: (T_base_lidar, calibration, frame, scan, the
     object-table row each beam hit)."""
     lcfg, ccfg, t_base_lidar, calib = _rig()
     lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))

@@ -12,7 +12,7 @@ from semmap.cli.main import main
 from semmap.errors import OutputExistsError
 from semmap.io.bag import message_count
 from semmap.paint.export import EXPORT_COLUMNS, export_painted
-from semmap.paint.figure import FramePicker
+from semmap.paint.figure import ImagePicker
 from semmap.records import Mobility
 
 # the demo tour's LiDAR: 270° at 0.5° is 541 beams
@@ -27,7 +27,7 @@ def exported(tmp_path_factory, short_demo_world):
     tour = simulate(short_demo_world, tmp_path_factory.mktemp("tour") / "demo", seed=3)
     out = tmp_path_factory.mktemp("paint") / "painted.npz"
     seen: list[tuple[int, int, int | None]] = []  # scan stamp, relabelled, image stamp
-    most, at = FramePicker(), FramePicker(at=0)
+    most, at = ImagePicker(), ImagePicker(at=0)
 
     def watch(pair):
         seen.append((pair.scan.stamp_ns, pair.relabelled, None if pair.view is None else pair.view.stamp_ns))
@@ -74,7 +74,7 @@ def test_picker_keeps_the_scan_with_most_relabelled_points(exported):
     painted = [s for s in seen if s[2] is not None]
     assert most.best is not None and most.best.relabelled == max(n for _, n, _ in painted)
     assert at.best is not None and at.best.scan.stamp_ns == painted[0][0]  # at=0: the earliest painted scan
-    assert most.frames_seen == len({s[2] for s in painted})
+    assert most.images_seen == len({s[2] for s in painted})
 
 
 def test_cli_writes_csv_and_picture_and_refuses_to_overwrite(exported, tmp_path, capsys):
@@ -102,13 +102,13 @@ def test_cli_writes_csv_and_picture_and_refuses_to_overwrite(exported, tmp_path,
     assert main(["paint", str(tour.out), "--picture", str(png)]) == OutputExistsError.exit_code
 
 
-def test_cli_draws_a_chosen_frame(exported, tmp_path, capsys):
+def test_cli_draws_a_chosen_image(exported, tmp_path, capsys):
     tour = exported[0]
-    png = tmp_path / "frame3.png"
-    assert main(["paint", str(tour.out), "--picture", str(png), "--frame", "3"]) == 0
+    png = tmp_path / "image3.png"
+    assert main(["paint", str(tour.out), "--picture", str(png), "--image", "3"]) == 0
     out = capsys.readouterr().out
     assert "picture" in out and "over the RGB image" in out
     assert cv2.imread(str(png)) is not None
     assert main(["paint", str(tour.out), "--picture", str(tmp_path / "none.png"), "--frame", "999", "-q"]) == 2
-    assert "frame 999" in capsys.readouterr().err
+    assert "image 999" in capsys.readouterr().err
     assert not (tmp_path / "none.png").exists()

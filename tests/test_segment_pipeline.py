@@ -127,10 +127,10 @@ def test_segment_a_bag_then_build_from_the_label_folder(ros1_tour, tmp_path, cap
 
     out = tmp_path / "seg"
     assert main(["segment", str(ros1_tour.out), "--backend", "topic", "--out", str(out)]) == 0
-    assert "frames" in capsys.readouterr().out
+    assert "images" in capsys.readouterr().out
     labels = sorted((out / "labels").glob("*.png"))
     summary = json.loads((out / "summary.json").read_text())
-    assert len(labels) == summary["frames"] == 40  # 8 s at 5 Hz
+    assert len(labels) == summary["images"] == 40  # 8 s at 5 Hz
     assert len(list((out / "overlays").glob("*.jpg"))) == 40
     lab = cv2.imread(str(labels[10]), cv2.IMREAD_UNCHANGED)
     assert lab.dtype == np.uint16 and lab.shape == (480, 640)
@@ -164,7 +164,7 @@ def test_segment_limit_counts_every_image_tried_and_repeated_warnings_are_counte
     assert main(["segment", str(ros1_tour.out), "--backend", "folder", "--folder", str(few), "--out", str(out),
                  "--limit", "10", "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["frames"] == 2 and summary["bad_frames"] == 8
+    assert summary["images"] == 2 and summary["bad_images"] == 8
     assert summary["skipped_because"] == {f"{few}: no label image for stamp N": 8}
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(warnings) == 4 and "8 images skipped in all" in warnings[-1]
@@ -177,9 +177,9 @@ def test_build_runs_a_model_backend_in_its_worker_and_a_rebuild_uses_the_cache(r
     seg = {"backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(cache)}
     first = build(ros1_tour.out, tmp_path / "m1", overrides={"segmentation": seg})
     entries = sorted(cache.glob("onnx-*/*.npz"))
-    assert first.summary.counts.frames == len(entries) == 40
+    assert first.summary.counts.images == len(entries) == 40
     assert first.summary.painting.backend == "onnx"
-    assert first.summary.cpu_s["frames"] > 0  # the model ran in the frame worker
+    assert first.summary.cpu_s["images"] > 0  # the model ran in the image worker
     assert set(first.summary.painting.hits_by_class) <= {"person", "chair"}
     mtimes = [p.stat().st_mtime_ns for p in entries]
     second = build(ros1_tour.out, tmp_path / "m2", overrides={"segmentation": seg})

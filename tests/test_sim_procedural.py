@@ -203,7 +203,7 @@ def test_a_short_random_tour_carries_standing_and_object_truth(tmp_path):
     # walls are hit by the LiDAR; some furniture is seen by the camera and its hits could be painted
     walls = [e for e in truth["objects"] if e["class"] == "wall"]
     assert sum(e["lidar_hits"] for e in walls) > 1000 and all(e["cells"] > 0 for e in walls)
-    seen = [e for e in truth["objects"] if e["camera_frames"] > 0]
+    seen = [e for e in truth["objects"] if e["camera_images"] > 0]
     assert seen and all(e["painted_hits"] <= e["lidar_hits"] for e in truth["objects"])
     manifest = (out / "tour.yaml").read_text()
     assert "people_standing: ground_truth/people_standing.yaml" in manifest

@@ -194,9 +194,9 @@ class TreeSampler(threading.Thread):
 
     def named(self) -> dict[str, dict]:
         """The processes by role: main (the build), its workers by the name they give themselves
-        (``semmap-register``, ``semmap-fusion``, ``semmap-frames`` in /proc/PID/comm), else in the order
+        (``semmap-register``, ``semmap-fusion``, ``semmap-images`` in /proc/PID/comm), else in the order
         they started, and multiprocessing's resource tracker."""
-        roles = {"semmap-register": "registration", "semmap-fusion": "fusion", "semmap-frames": "frames"}
+        roles = {"semmap-register": "registration", "semmap-fusion": "fusion", "semmap-images": "images"}
         out: dict[str, dict] = {}
         unnamed = []
         for pid, rec in sorted(self.procs.items(), key=lambda kv: (kv[1]["first"], kv[0])):
@@ -210,7 +210,7 @@ class TreeSampler(threading.Thread):
                 unnamed.append(rec)
             else:
                 out[f"other_{pid}"] = rec
-        free = [n for n in ["registration", "fusion", "frames"] if n not in out] + [f"worker{i}" for i in range(3, 20)]
+        free = [n for n in ["registration", "fusion", "images"] if n not in out] + [f"worker{i}" for i in range(3, 20)]
         for name, rec in zip(free, unnamed):
             out[name] = rec
         return out
@@ -346,7 +346,7 @@ def measure(minutes: float, args: argparse.Namespace, tours: Path, maps: Path, d
     # the streaming phase, as the sampler saw it: while the workers lived, less the first and last fifth
     named = sampler.named()
     procs = {}
-    worker_recs = [r for k, r in named.items() if k in ("registration", "fusion", "frames")]
+    worker_recs = [r for k, r in named.items() if k in ("registration", "fusion", "images")]
     t_a = max((r["first"] for r in worker_recs), default=0.0)
     t_b = min((r["last"] for r in worker_recs), default=0.0)
     span = t_b - t_a
@@ -428,7 +428,7 @@ def _git_state() -> dict:
 
 
 def _worker_names(rows: list[dict]) -> list[str]:
-    order = ["registration", "fusion", "frames"]
+    order = ["registration", "fusion", "images"]
     names = {k for r in rows for k in r["peak_rss_mb_workers"]}
     return [n for n in order if n in names] + sorted(names - set(order))
 

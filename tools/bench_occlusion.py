@@ -178,13 +178,13 @@ class Tally:
 def score_tour(tour: Path, pictures: Path | None, tag: str) -> dict:
     """Paint the tour with and without the filter and score every beam against the truth."""
     from semmap.paint.export import iter_painted
-    from semmap.paint.figure import FramePicker, camera_image, paint_picture
+    from semmap.paint.figure import ImagePicker, camera_image, paint_picture
 
     gt = np.load(tour / "ground_truth" / "beams.npz")
     row_of = {int(s): i for i, s in enumerate(gt["stamp_ns"])}
     truth = gt["mobility"]
     tally = Tally()
-    most = FramePicker()
+    most = ImagePicker()
     unmatched = 0
     t = time.perf_counter()
     for pair in iter_painted(tour):

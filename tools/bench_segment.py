@@ -60,7 +60,7 @@ from semmap.pipeline import build
 r = build(sys.argv[1], sys.argv[2], overrides=json.loads(sys.argv[3]), force=True)
 s = r.summary.model_dump(mode="json")
 print(json.dumps({"loop_s": s["timings_s"]["loop"], "total_s": s["timings_s"]["total"],
-                  "scans": s["counts"]["scans"], "frames": s["counts"].get("frames", 0),
+                  "scans": s["counts"]["scans"], "images": s["counts"].get("images", 0),
                   "segmentation_busy_s": s["timings_s"]["segmentation_busy"],
                   "scans_per_s": s["throughput"]["scans_per_s"]}))
 """
@@ -330,12 +330,12 @@ def main() -> int:
             best, worst = max(t_map, t_seg), t_map + t_seg
             frac = (worst - t_both) / (worst - best) if worst > best else float("nan")
             row = {"scenario": args.scenario, "backend": backend, "scans": mapping["scans"],
-                   "frames": serial["frames"], "mapping_alone_s": t_map, "segmentation_alone_s": t_seg,
+                   "images": serial["images"], "mapping_alone_s": t_map, "segmentation_alone_s": t_seg,
                    "with_worker_s": t_both, "in_one_process_s": serial["loop_s"], "max_s": best, "sum_s": worst,
                    "share_of_overlap_gained": frac, "scans_per_s_mapping_alone": mapping["scans_per_s"],
                    "scans_per_s_with_worker": both["scans_per_s"]}
             results["pipeline"].append(row)
-            print(f"| {backend} ({serial['frames']} frames) | {t_map:.2f} | {t_seg:.2f} | **{t_both:.2f}** | "
+            print(f"| {backend} ({serial['images']} images) | {t_map:.2f} | {t_seg:.2f} | **{t_both:.2f}** | "
                   f"{serial['loop_s']:.2f} | {best:.2f} / {worst:.2f} | {100 * frac:.0f} % | "
                   f"{mapping['scans_per_s']} → {both['scans_per_s']} |")
     results["load_average_after"] = os.getloadavg()[0]

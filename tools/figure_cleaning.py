@@ -38,7 +38,7 @@ def _crop_centres(tour: Path, truth) -> list[tuple[str, np.ndarray]]:  # type: i
         p = by_id.get(int(rec["id"]))
         if p is not None and rec.get("lidar_hits", 0) > 0 and rec.get("standing_s", 0) >= 5:
             role = rec.get("role") or "standing"
-            seen = "seen by the camera" if rec.get("camera_frames", 0) else "never seen by the camera"
+            seen = "seen by the camera" if rec.get("camera_images", 0) else "never seen by the camera"
             out.append((f"{p.name} ({role}, {seen})", np.asarray(p.state(1e9 if p.waypoints.shape[0] == 1
                                                                           else 0.0)[:2])))
             break

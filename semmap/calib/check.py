@@ -167,18 +167,18 @@ def frame_from_bag(bag: str | Path, time_s: float | None = None, *, image_topic:
     path, _, manifest = read_tour_manifest(bag)
     with read_bag(path) as src:
         topics = pick_topics(src.types, TopicsConfig(scan=scan_topic, image=image_topic), path, "rgb", manifest,
-                             kinds=("scan", "frames"), required=("scan", "frames"),
+                             kinds=("scan", "image"), required=("scan", "image"),
                              options={"scan": "--scan-topic", "image": "--image-topic"})
-        assert topics.scan and topics.frames is not None  # required
+        assert topics.scan and topics.image is not None  # required
         start, end = src.start_ns, src.end_ns
         if time_s is None:
             time_s = (end - start) * 0.5e-9
         target = start + int(round(time_s * 1e9))
         if not start <= target <= end:
             raise BagError(f"{bag}: time {time_s:g} s is outside the bag (0 to {(end - start) / 1e9:.1f} s)")
-        found = src.nearest(topics.frames, target)  # the image nearest the time asked for (bag time)
+        found = src.nearest(topics.image, target)  # the image nearest the time asked for (bag time)
         if found is None:
-            raise BagError(f"{bag}: no messages on {topics.frames}")
+            raise BagError(f"{bag}: no messages on {topics.image}")
         t_img, image = found
         window = 2_000_000_000  # the scan nearest the image (header stamps), within 2 s of it (bag time)
         best: Scan | None = None

@@ -11,11 +11,11 @@ from ._progress import console, progress_bar
 def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "paint", parents=[common],
-        help="export the painted LiDAR points of a tour (with and without the occlusion filter), draw one frame",
+        help="export the painted LiDAR points of a tour (with and without the occlusion filter), draw one camera image",
         description="Paint every LiDAR scan of a tour with the camera's segmentation, as semmap build does, "
                     "once without and once with the occlusion filter, and write one row per beam: stamp_ns, "
                     "beam, x, y (LiDAR frame, m), class_raw, mobility_raw (without the filter), class, mobility "
-                    "(with it). --picture draws one camera frame: the masks, the points without the filter, "
+                    "(with it). --picture draws one camera image: the masks, the points without the filter, "
                     "and with it.",
     )
     p.add_argument("tour", type=Path, metavar="TOUR",
@@ -26,11 +26,11 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
     p.add_argument("--calibration", type=Path, metavar="FILE",
                    help="calibration file (default: the config's, or calibration.yaml beside the bag)")
     p.add_argument("--picture", type=Path, metavar="PNG",
-                   help="also draw one camera frame (default: the scan the filter relabelled most points of)")
+                   help="also draw one camera image (default: the scan the filter relabelled most points of)")
     which = p.add_mutually_exclusive_group()
     which.add_argument("--at", type=int, metavar="STAMP_NS",
                        help="with --picture: the scan with this stamp (the table's stamp_ns), or the nearest")
-    which.add_argument("--frame", type=int, metavar="N",
+    which.add_argument("--image", "--frame", dest="image", type=int, metavar="N",
                        help="with --picture: the N-th camera image the scans were painted with (0-based)")
     p.add_argument("--force", action="store_true", help="replace FILE and PNG if they exist")
     p.set_defaults(run=run)
@@ -39,14 +39,14 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
 def run(args: argparse.Namespace) -> int:
     from ..errors import ConfigError, OutputExistsError
     from ..paint.export import export_painted, iter_painted
-    from ..paint.figure import FramePicker, draw_picked
+    from ..paint.figure import ImagePicker, draw_picked
 
     if args.out is None and args.picture is None:
         raise ConfigError("give --out FILE.csv|FILE.npz, --picture PNG, or both")
-    if args.picture is None and (args.at is not None or args.frame is not None):
-        raise ConfigError("--at and --frame choose the frame --picture draws; give --picture PNG")
-    if args.frame is not None and args.frame < 0:
-        raise ConfigError(f"--frame must be 0 or more, got {args.frame}")
+    if args.picture is None and (args.at is not None or args.image is not None):
+        raise ConfigError("--at and --image choose the scan --picture draws; give --picture PNG")
+    if args.image is not None and args.image < 0:
+        raise ConfigError(f"--image must be 0 or more, got {args.image}")
     if args.picture is not None:
         if args.picture.suffix.lower() != ".png":
             raise ConfigError(f"{args.picture}: the picture is a PNG; name it .png")
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
             raise OutputExistsError(f"{args.picture}: exists (use --force to replace it)")
         if not args.picture.parent.is_dir():
             raise ConfigError(f"{args.picture.parent}: no such folder")
-    picker = FramePicker(args.at, args.frame) if args.picture is not None else None
+    picker = ImagePicker(args.at, args.image) if args.picture is not None else None
 
     result = None
     with progress_bar("painting the scans", enabled=not args.quiet) as progress:

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         out = console()
         out.print(f"[bold]semmap segment[/bold]: {args.source} → {res.out} ({cfg.backend})")
-        out.print(f"  frames  {res.frames} segmented, {res.bad_frames} skipped, {res.fps:.1f} images/s")
+        out.print(f"  images  {res.images} segmented, {res.bad_images} skipped, {res.fps:.1f} images/s")
         top = ", ".join(f"{k} {100 * v:.0f}%" for k, v in list(res.pixel_share.items())[:6]) or "no objects"
         out.print(f"  classes {top}")
         out.print(f"  labels  {res.out / 'labels'}   overlays {res.out / 'overlays'}")

@@ -51,8 +51,8 @@ NOT_CAMERA_HINTS = ("depth",)
 #: an odometry topic whose name holds one of these is a reference, not the robot's own odometry
 TRUTH_HINTS = ("ground_truth", "groundtruth", "gt", "truth", "mocap", "vicon")
 
-Kind = Literal["scan", "odometry", "frames", "camera_info"]
-_ALL_KINDS: tuple[Kind, ...] = ("scan", "odometry", "frames", "camera_info")
+Kind = Literal["scan", "odometry", "image", "camera_info"]
+_ALL_KINDS: tuple[Kind, ...] = ("scan", "odometry", "image", "camera_info")
 _SCAN_ONLY: tuple[Kind, ...] = ("scan",)
 
 
@@ -78,8 +78,8 @@ class TopicSettings(Protocol):
 @dataclass(frozen=True)
 class Topics:
     scan: str  # "" only when the scan topic was not asked for
-    frames: str | None  # the image stream the segmenter consumes (labels or RGB)
-    frames_kind: str  # "labels" | "rgb" | "none"
+    image: str | None  # the image stream the segmenter consumes (labels or RGB)
+    image_kind: str  # "labels" | "rgb" | "none"
     odometry: str | None
     tf_static: str | None
     camera_info: str | None
@@ -117,7 +117,7 @@ def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | 
 
     ``settings``: the names the user set; a topic not set is taken from the tour folder's
     ``manifest`` (``tour.yaml``'s ``topics:``) when it names one in the bag, else detected from the
-    message types. ``consumes``: ``"labels"`` (the frames are label images) or ``"rgb"``. ``kinds``:
+    message types. ``consumes``: ``"labels"`` (the images are label images) or ``"rgb"``. ``kinds``:
     the topics wanted (the others are None); ``required``: those whose absence is an error.
     ``options``: how the user names each kind (``{"image": "--topic"}``), for the error that says
     how to choose; by default ``topics.<kind> in the config``.
@@ -137,23 +137,23 @@ def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | 
     def of(*wanted_types: str) -> list[str]:
         return [k for k, v in types.items() if v in wanted_types]
 
-    scan = odometry = frames = camera_info = None
-    frames_kind = "none"
+    scan = odometry = image = camera_info = None
+    image_kind = "none"
     if "scan" in kinds:
         scan = _pick("scan", want("scan"), of(SCAN_T), types, where, "scan" in required, option("scan"), (SCAN_T,))
     if "odometry" in kinds:
         odoms = [k for k in of(ODOM_T) if not _named(k, TRUTH_HINTS)]
         odometry = _pick("odometry", want("odometry"), odoms, types, where, "odometry" in required,
                          option("odometry"), (ODOM_T,))
-    if "frames" in kinds:
+    if "image" in kinds:
         images = [k for k in of(*IMAGE_TYPES) if not _named(k, NOT_CAMERA_HINTS)]
         name = "labels" if consumes == "labels" else "image"
         cands = [k for k in images if _named(k, LABEL_HINTS) == (consumes == "labels")]
-        frames = _pick(name, want(name), cands, types, where, "frames" in required, option(name), IMAGE_TYPES)
-        frames_kind = ("labels" if consumes == "labels" else "rgb") if frames else "none"
+        image = _pick(name, want(name), cands, types, where, "image" in required, option(name), IMAGE_TYPES)
+        image_kind = ("labels" if consumes == "labels" else "rgb") if image else "none"
     if "camera_info" in kinds:
         infos = of(INFO_T)
         camera_info = _pick("camera_info", want("camera_info"), infos, types, where, "camera_info" in required,
                             option("camera_info"), (INFO_T,)) if infos or settings.camera_info else None
     tf_static = settings.tf_static if settings.tf_static in types else None
-    return Topics(scan or "", frames, frames_kind, odometry, tf_static, camera_info)
+    return Topics(scan or "", image, image_kind, odometry, tf_static, camera_info)

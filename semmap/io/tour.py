@@ -210,7 +210,7 @@ def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], conf
     calib = None
     calib_path: Path | None = None
     calib_source = ""
-    if topics.frames is not None:
+    if topics.image is not None:
         if calibration is not None:
             calib_path = Path(calibration)
         elif config.calibration is not None:
@@ -241,7 +241,7 @@ def _calibration_from_bag(src: OpenBag, topics: Topics, lidar_frame: str,
     bag = src.path
     hint = "pass --calibration FILE or set 'calibration:' in the config"
     if topics.camera_info is None:
-        raise ConfigError(f"{bag}: the tour has camera topic {topics.frames} but no calibration file and no "
+        raise ConfigError(f"{bag}: the tour has camera topic {topics.image} but no calibration file and no "
                           f"sensor_msgs/CameraInfo topic; {hint}")
     msg = src.first(topics.camera_info)
     try:

@@ -27,7 +27,7 @@ from ..io.mapserver import read_map
 from ..io.tum import read_tum
 from ..records import GridSpec
 from .summary import BuildSummary
-from .writer import MAP_FOLDER_VERSION
+from .writer import GRID_FORMAT_VERSION, MAP_FOLDER_VERSION
 
 __all__ = ["MapFolder", "load_map_folder"]
 
@@ -104,16 +104,37 @@ def _summary(folder: Path) -> BuildSummary:
     if not isinstance(data, dict):
         raise MapFolderError(f"{p}: expected a JSON object")
     version = data.get("map_folder_version")
-    if version != MAP_FOLDER_VERSION:
-        raise MapFolderError(f"{p}: map_folder_version {version!r}; this semmap reads version {MAP_FOLDER_VERSION} "
-                             f"(written by semmap {data.get('semmap_version', '?')}): rebuild the map with this "
-                             f"semmap, or read it with the semmap that wrote it")
+    if version not in (1, MAP_FOLDER_VERSION):
+        raise MapFolderError(f"{p}: map_folder_version {version!r}; this semmap reads versions 1 to "
+                             f"{MAP_FOLDER_VERSION} (written by semmap {data.get('semmap_version', '?')}): rebuild "
+                             f"the map with this semmap, or read it with the semmap that wrote it")
+    if version == 1:
+        data = _summary_from_v1(data)
     try:
         return BuildSummary.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         where = ".".join(str(x) for x in err["loc"])
         raise MapFolderError(f"{p}: {where}: {err['msg']}") from None
+
+
+def _summary_from_v1(data: dict[str, Any]) -> dict[str, Any]:
+    """A version-1 ``summary.json`` in version 2's keys: its camera images were "frames"."""
+
+    def renamed(part: Any, old: str, new: str) -> None:
+        if isinstance(part, dict) and old in part:
+            part[new] = part.pop(old)
+
+    data = json.loads(json.dumps(data))  # a deep copy
+    topics = data.get("tour", {}).get("topics")
+    renamed(topics, "frames", "image")
+    renamed(topics, "frames_kind", "image_kind")
+    renamed(data.get("counts"), "frames", "images")
+    renamed(data.get("counts"), "bad_frames", "bad_images")
+    renamed(data.get("cpu_s"), "frames", "images")
+    renamed(data.get("peak_rss_mb_workers"), "frames", "images")
+    data["map_folder_version"] = MAP_FOLDER_VERSION
+    return data
 
 
 def _grid(folder: Path) -> dict[str, NDArray[Any]]:
@@ -128,9 +149,9 @@ def _grid(folder: Path) -> dict[str, NDArray[Any]]:
     missing = [k for k in need if k not in data]
     if missing:
         raise MapFolderError(f"{p}: missing arrays {', '.join(missing)}")
-    if int(data["format_version"]) != MAP_FOLDER_VERSION:
+    if int(data["format_version"]) != GRID_FORMAT_VERSION:
         raise MapFolderError(f"{p}: format_version {int(data['format_version'])}; this semmap reads "
-                             f"{MAP_FOLDER_VERSION}")
+                             f"{GRID_FORMAT_VERSION}")
     return data
 
 

@@ -33,8 +33,8 @@ class _Part(BaseModel):
 
 class TourTopics(_Part):
     scan: str
-    frames: str | None
-    frames_kind: str | None
+    image: str | None
+    image_kind: str | None
     odometry: str | None
     tf_static: str | None
 
@@ -71,8 +71,8 @@ class CountsSummary(_Part):
     odometry: int  # odometry messages
     bad_scans: int  # no beams, or no angle increment
     scans_out_of_order: int  # repeated or backwards stamps
-    frames: int  # camera images segmented
-    bad_frames: int  # camera images that could not be read or segmented
+    images: int  # camera images segmented
+    bad_images: int  # camera images that could not be read or segmented
 
 
 class OcclusionSummary(_Part):

@@ -33,10 +33,14 @@ from ..io.yamlio import write_yaml
 from ..runtime import peak_rss_mb
 from .summary import BuildSummary
 
-__all__ = ["MAP_FOLDER_VERSION", "BuildOutcome", "write_map_folder"]
+__all__ = ["GRID_FORMAT_VERSION", "MAP_FOLDER_VERSION", "BuildOutcome", "write_map_folder"]
 
-#: the layout of the map folder; :func:`semmap.load_map` reads this version only
-MAP_FOLDER_VERSION = 1
+#: the layout of the map folder (``summary.json``'s keys and the files); :func:`semmap.load_map` reads
+#: this version and the ones before it. 2: camera images are "images" in ``summary.json`` (version 1
+#: said "frames", the word now kept for coordinate frames).
+MAP_FOLDER_VERSION = 2
+#: the layout of ``grid.npz`` (its ``format_version``), unchanged since the first map folder
+GRID_FORMAT_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -73,7 +77,7 @@ def write_map_folder(out: Path, outcome: BuildOutcome) -> BuildSummary:
                                                   encoding="utf-8")
     np.savez_compressed(
         out / "grid.npz",
-        format_version=np.int32(MAP_FOLDER_VERSION),
+        format_version=np.int32(GRID_FORMAT_VERSION),
         resolution=np.float64(spec.resolution),
         origin=np.array([spec.origin_x, spec.origin_y], np.float64),
         log_odds=layers.log_odds,

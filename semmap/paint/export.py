@@ -27,7 +27,7 @@ from ..config import BuildConfig
 from ..errors import BagError, ConfigError, OutputExistsError
 from ..io.bag import OpenBag, read_bag
 from ..records import Mobility, PaintedScan, Scan, Segmentation
-from ..segment.frames import InProcessFrames
+from ..segment.images import InProcessImages
 from .painter import CameraView, Painter
 from .stream import ScanStream, open_build_tour, tour_class_names
 
@@ -97,7 +97,7 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
                    calibration: str | Path | None, overrides: dict[str, Any] | None,
                    progress: ProgressFn | None) -> Iterator[PaintedPair]:
     tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
-    if tinfo.topics.frames is None:
+    if tinfo.topics.image is None:
         raise BagError(f"{tinfo.bag}: no camera or label image topic, so nothing to paint; set topics.image "
                        f"or topics.labels")
     names = tour_class_names(tinfo, cfg)
@@ -107,14 +107,14 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range)
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
                           cfg.grid.no_return_range)
-    frames = InProcessFrames(tinfo.bag, tinfo.topics.frames, cfg.segmentation)
+    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation)
     try:
-        for item in ScanStream(tinfo, cfg.sync, frames, progress, bag=bag):
+        for item in ScanStream(tinfo, cfg.sync, images, progress, bag=bag):
             raw = raw_painter.paint(item.scan, item.odometry, item.segmentation)
             filtered = painter.paint(item.scan, item.odometry, item.segmentation)
             yield PaintedPair(item.scan, raw.painted, filtered.painted, filtered.view, item.segmentation)
     finally:
-        frames.close()
+        images.close()
 
 
 def _beam_rows(pair: PaintedPair) -> dict[str, NDArray[Any]]:

@@ -1,4 +1,4 @@
-"""The research's Fig. 6 for one camera frame: what the occlusion filter changes.
+"""The research's Fig. 6 for one camera image: what the occlusion filter changes.
 
 :func:`paint_picture` draws three panels side by side for one :class:`PaintedPair`:
 
@@ -12,7 +12,7 @@
 When the true mobility of the beams is known (simulated tours), points whose painted
 mobility is still wrong in (c) are crossed out.
 
-:class:`FramePicker` chooses which scan to draw while a tour streams past (the one with
+:class:`ImagePicker` chooses which scan to draw while a tour streams past (the one with
 the most relabelled points, by default), so a tour is read once; :func:`picture` is the
 whole job for one tour.
 """
@@ -36,7 +36,7 @@ from ..palette import class_color, rgb01
 from ..records import Image, Mobility
 from .export import PaintedPair, iter_painted
 
-__all__ = ["FramePicker", "PictureResult", "camera_image", "draw_picked", "paint_picture", "picture"]
+__all__ = ["ImagePicker", "PictureResult", "camera_image", "draw_picked", "paint_picture", "picture"]
 
 log = logging.getLogger(__name__)
 
@@ -61,29 +61,29 @@ class PictureResult:
     rgb: bool  # drawn over the RGB image (else over the label masks)
 
 
-class FramePicker:
+class ImagePicker:
     """Keep the one scan worth drawing while pairs stream past.
 
     * default: the scan with the most relabelled points (the first of equals);
     * ``at``: the scan whose stamp is nearest ``at`` (ns; the export's ``stamp_ns`` column);
-    * ``frame``: the ``frame``-th camera image (0-based, counting the images scans were
+    * ``image``: the ``image``-th camera image (0-based, counting the images scans were
       painted with), and of its scans the one with the most relabelled points.
 
     Only scans that fell into a camera image are considered.
     """
 
-    def __init__(self, at: int | None = None, frame: int | None = None) -> None:
-        if at is not None and frame is not None:
-            raise ValueError("give at most one of at and frame")
-        if frame is not None and frame < 0:
-            raise ValueError(f"frame must be >= 0, got {frame}")
-        self.at, self.frame = at, frame
+    def __init__(self, at: int | None = None, image: int | None = None) -> None:
+        if at is not None and image is not None:
+            raise ValueError("give at most one of at and image")
+        if image is not None and image < 0:
+            raise ValueError(f"image must be >= 0, got {image}")
+        self.at, self.image = at, image
         self.best: PaintedPair | None = None
         self._key: tuple[float, ...] = ()
         self._image_stamps: list[int] = []
 
     @property
-    def frames_seen(self) -> int:
+    def images_seen(self) -> int:
         """Camera images the painted scans used so far."""
         return len(self._image_stamps)
 
@@ -95,8 +95,8 @@ class FramePicker:
             self._image_stamps.append(view.stamp_ns)
         if self.at is not None:
             key: tuple[float, ...] = (-abs(pair.scan.stamp_ns - self.at),)
-        elif self.frame is not None:
-            if len(self._image_stamps) - 1 != self.frame:
+        elif self.image is not None:
+            if len(self._image_stamps) - 1 != self.image:
                 return
             key = (pair.relabelled, -abs(pair.scan.stamp_ns - view.stamp_ns))
         else:
@@ -128,7 +128,7 @@ def camera_image(tour: str | Path, stamp_ns: int, config: str | Path | BuildConf
         except SemmapError as exc:
             log.info("%s: no RGB image for the picture (%s)", tour, exc)
             return None
-        topic = tinfo.topics.frames
+        topic = tinfo.topics.image
         if topic is None:
             return None
         try:  # bag time runs a little behind capture time
@@ -318,29 +318,29 @@ def picture(
     calibration: str | Path | None = None,
     overrides: dict[str, Any] | None = None,
     at: int | None = None,
-    frame: int | None = None,
+    image: int | None = None,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> PictureResult:
-    """Paint ``tour`` and draw Fig. 6 for one scan (see :class:`FramePicker` for which)."""
+    """Paint ``tour`` and draw Fig. 6 for one scan (see :class:`ImagePicker` for which)."""
     out_png = Path(out_png)
     if out_png.exists() and not force:
         raise OutputExistsError(f"{out_png}: exists (use --force to replace it)")
-    picker = FramePicker(at, frame)
+    picker = ImagePicker(at, image)
     for pair in iter_painted(tour, config, calibration, overrides, progress):
         picker.offer(pair)
     return draw_picked(picker, tour, out_png, config, calibration)
 
 
-def draw_picked(picker: FramePicker, tour: str | Path, out_png: str | Path,
+def draw_picked(picker: ImagePicker, tour: str | Path, out_png: str | Path,
                 config: str | Path | BuildConfig | None = None,
                 calibration: str | Path | None = None) -> PictureResult:
     """Draw the scan ``picker`` kept, over the tour's RGB image when it has one."""
     pair = picker.best
     if pair is None or pair.view is None:
-        if picker.frame is not None and picker.frames_seen <= picker.frame:
-            raise ConfigError(f"{tour}: frame {picker.frame} asked for, but the scans were painted with only "
-                              f"{picker.frames_seen} camera images")
+        if picker.image is not None and picker.images_seen <= picker.image:
+            raise ConfigError(f"{tour}: image {picker.image} asked for, but the scans were painted with only "
+                              f"{picker.images_seen} camera images")
         raise BagError(f"{tour}: no scan fell into a camera image, so there is nothing to draw")
     img = camera_image(tour, pair.view.stamp_ns, config, calibration)
     paint_picture(pair, out_png, img)

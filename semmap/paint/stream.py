@@ -5,7 +5,7 @@ This is the streaming core that ``semmap build`` and ``semmap paint`` share::
 
     from semmap.paint.stream import ScanStream
 
-    for item in ScanStream(tour, cfg.sync, frames):
+    for item in ScanStream(tour, cfg.sync, images):
         result = painter.paint(item.scan, item.odometry, item.segmentation)
 
 It buffers just enough to pair each scan:
@@ -15,7 +15,7 @@ It buffers just enough to pair each scan:
   ``sync.max_wait_s`` of bag time or ``sync.max_wait_scans`` scans: odometry that stops or never
   comes does not hold the tour back.
 * Its segmentation is the one of the image nearest the scan's middle beam, within
-  ``sync.max_image_offset``; segmentations are pulled from the :class:`FrameSource` only as far as
+  ``sync.max_image_offset``; segmentations are pulled from the :class:`ImageSource` only as far as
   that needs, and handed back once the pairing window has passed them by
   ``sync.keep_images_s``.
 * Odometry older than ``sync.keep_odometry_s`` before the scan is forgotten once it is yielded.
@@ -44,7 +44,7 @@ from ..io.bag import OpenBag, ReadStats, read_bag
 from ..io.tour import Tour, load_build_config, open_tour
 from ..records import Scan, Segmentation
 from ..segment.base import backend_consumes
-from ..segment.frames import FrameSource
+from ..segment.images import ImageSource
 from .motion import OdomTrack
 from .painter import Painter
 
@@ -84,20 +84,20 @@ class StreamCounts:
 
 
 class ScanStream:
-    """The scans of ``tour`` paired with segmentations from ``frames`` and with the odometry.
+    """The scans of ``tour`` paired with segmentations from ``images`` and with the odometry.
 
     Iterate once. ``bag``: the tour's bag already opened (:func:`~semmap.io.bag.read_bag`, as
     :func:`open_build_tour` used it), else it is opened here; either way it is closed when the
-    iteration ends (or the iterator is closed). ``frames`` is not closed here: its owner closes it.
+    iteration ends (or the iterator is closed). ``images`` is not closed here: its owner closes it.
     ``progress(done, total)`` is called every 50 scan messages and at the end.
     """
 
-    def __init__(self, tour: Tour, sync: SyncConfig, frames: FrameSource | None = None,
+    def __init__(self, tour: Tour, sync: SyncConfig, images: ImageSource | None = None,
                  progress: ProgressFn | None = None, bag: OpenBag | None = None) -> None:
         self.tour = tour
         self._bag = bag
         self.sync = sync
-        self.frames = frames
+        self.images = images
         self.progress = progress
         self.counts = StreamCounts()
         self.read_stats = ReadStats()
@@ -106,7 +106,7 @@ class ScanStream:
         #: seconds spent waiting for segmentations (a slow model shows here)
         self.wait_images_s = 0.0
         self._segs: deque[Segmentation] = deque()
-        self._frames_done = frames is None
+        self._images_done = images is None
         self._pending: deque[tuple[int, Scan]] = deque()  # (bag time, scan)
         self._max_offset_ns = int(sync.max_image_offset * 1e9)
         self._keep_images_ns = int(sync.keep_images_s * 1e9)
@@ -179,19 +179,19 @@ class ScanStream:
             self.odometry.trim(scan.stamp_ns - self._keep_odom_ns)  # forget what no future scan needs
 
     def _segmentation(self, scan: Scan) -> Segmentation | None:
-        """The segmentation nearest the scan's middle, pulling frames only as far as needed."""
+        """The segmentation nearest the scan's middle, pulling images only as far as needed."""
         mid = scan.stamp_ns + (self._end_ns(scan) - scan.stamp_ns) // 2
         segs = self._segs
-        while not self._frames_done and (not segs or segs[-1].stamp_ns < mid + self._max_offset_ns):
-            assert self.frames is not None
-            seg = self.frames.next()
+        while not self._images_done and (not segs or segs[-1].stamp_ns < mid + self._max_offset_ns):
+            assert self.images is not None
+            seg = self.images.next()
             if seg is None:
-                self._frames_done = True
+                self._images_done = True
             else:
                 segs.append(seg)
         while len(segs) > 1 and segs[0].stamp_ns < mid - self._max_offset_ns - self._keep_images_ns:
-            assert self.frames is not None
-            self.frames.release(segs.popleft())
+            assert self.images is not None
+            self.images.release(segs.popleft())
         if not segs:
             return None
         best = min(segs, key=lambda s: abs(s.stamp_ns - mid))
@@ -233,7 +233,7 @@ def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = 
 
 def tour_class_names(tour: Tour, cfg: BuildConfig) -> tuple[str, ...]:
     """The class names the tour's scans are painted with: the segmenter's (none without a camera)."""
-    if tour.topics.frames is None:
+    if tour.topics.image is None:
         return ()
     from ..segment.base import create_segmenter
 

@@ -5,9 +5,9 @@ Writes into the output folder (atomically, as every semmap output)::
     labels/<name>.png      uint16 label images (value k = classes.json names[k-1], 0 = none)
     overlays/<name>.jpg    the image with the masks drawn over it and a legend
     classes.json           {"names": [...], "backend": ..., "model": ...}
-    summary.json           frames, speed, pixel share per class, the effective configuration
+    summary.json           images, speed, pixel share per class, the effective configuration
 
-``<name>`` is the image's stamp in nanoseconds for bag frames, the file stem for image
+``<name>`` is the image's stamp in nanoseconds for bag images, the file stem for image
 files. The labels folder is what the ``folder`` backend reads back
 (``segmentation: {backend: folder, folder: OUT/labels}``).
 
@@ -54,18 +54,18 @@ class SegmentResult:
     """What :func:`segment_source` wrote."""
 
     out: Path
-    frames: int
-    bad_frames: int
+    images: int
+    bad_images: int
     seconds: float  # time in the backend's segment calls
     names: tuple[str, ...]
     pixel_share: dict[str, float]  # share of all labelled pixels per class
 
     @property
     def fps(self) -> float:
-        return self.frames / self.seconds if self.seconds else 0.0
+        return self.images / self.seconds if self.seconds else 0.0
 
 
-_FRAMES: tuple[Kind, ...] = ("frames",)
+_IMAGES: tuple[Kind, ...] = ("image",)
 
 
 def iter_image_folder(folder: Path) -> Iterator[tuple[str, Image]]:
@@ -84,7 +84,7 @@ def iter_image_folder(folder: Path) -> Iterator[tuple[str, Image]]:
 
 
 class _Skipped:
-    """Frames the segmenter refused: the first few are logged, the rest counted by reason (the
+    """Images the segmenter refused: the first few are logged, the rest counted by reason (the
     reason with its numbers taken out, so 'no label image for stamp N' counts as one)."""
 
     SHOWN = 3
@@ -115,15 +115,15 @@ def _pick_topic(src: OpenBag, source: Path, wanted: str | None, consumes: str) -
 
     manifest = read_tour_manifest(source)[2]
     settings = TopicsConfig.model_validate({"labels" if consumes == "labels" else "image": wanted})
-    topics = pick_topics(src.types, settings, src.path, consumes, manifest, kinds=_FRAMES, required=_FRAMES,
+    topics = pick_topics(src.types, settings, src.path, consumes, manifest, kinds=_IMAGES, required=_IMAGES,
                          options={"image": "--topic", "labels": "--topic"})
-    assert topics.frames is not None  # required
-    return topics.frames
+    assert topics.image is not None  # required
+    return topics.image
 
 
 def _iter_bag(src: OpenBag, topic: str, stats: dict[str, int]) -> Iterator[tuple[str, Image]]:
     def skipped(topic: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped and counted
-        stats["bad_frames"] += 1
+        stats["bad_images"] += 1
         log.debug("skipped a frame on %s: %s", topic, exc)
 
     for _, _, img in src.records([topic], skip=skipped):
@@ -182,8 +182,8 @@ def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topi
     from ..io.bag import read_bag, resolve_bag_path
 
     consumes = backend_consumes(config)
-    stats = {"bad_frames": 0}
-    frames: Iterator[tuple[str, Image]]
+    stats = {"bad_images": 0}
+    images: Iterator[tuple[str, Image]]
     total = 0
     try:
         bag = resolve_bag_path(src)
@@ -192,16 +192,16 @@ def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topi
     if bag is not None:
         opened = stack.enter_context(read_bag(bag))
         tname = _pick_topic(opened, src, topic, consumes)
-        frames = _iter_bag(opened, tname, stats)
+        images = _iter_bag(opened, tname, stats)
         total = opened.count(tname)
         source_desc = {"bag": str(bag), "topic": tname}
     elif src.is_dir():
-        frames = iter_image_folder(src)
+        images = iter_image_folder(src)
         total = sum(1 for p in src.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
         source_desc = {"folder": str(src)}
     elif src.suffix.lower() in IMAGE_SUFFIXES:
-        frames = iter_image_folder(src.parent)  # keeps stamps consistent with the whole folder
-        frames = (f for f in frames if f[0] == src.stem)
+        images = iter_image_folder(src.parent)  # keeps stamps consistent with the whole folder
+        images = (f for f in images if f[0] == src.stem)
         total = 1
         source_desc = {"image": str(src)}
     else:
@@ -217,7 +217,7 @@ def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topi
             (tmp / "labels").mkdir()
             if overlays:
                 (tmp / "overlays").mkdir()
-            for name, image in frames:
+            for name, image in images:
                 if limit is not None and n + skipped.count >= limit:  # images tried, segmented or not
                     break
                 t0 = time.perf_counter()
@@ -243,7 +243,7 @@ def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topi
             if n == 0:
                 why = f" ({skipped.first})" if skipped.first else ""
                 raise SemmapError(f"{src}: no image could be segmented{why}")
-            stats["bad_frames"] += skipped.count
+            stats["bad_images"] += skipped.count
             names = tuple(seg.names)
             all_px = sum(pixels.values()) or 1
             share = {names[v - 1]: round(c / all_px, 4) for v, c in sorted(pixels.items(), key=lambda kv: -kv[1])}
@@ -251,11 +251,11 @@ def _segment_source(src: Path, out: str | Path, config: SegmentationConfig, topi
                                     "model": str(config.weights) if config.weights else None}
             (tmp / "labels" / "classes.json").write_text(json.dumps(meta, indent=1))
             (tmp / "classes.json").write_text(json.dumps(meta, indent=1))
-            summary = {"source": source_desc, "frames": n, "bad_frames": stats["bad_frames"],
+            summary = {"source": source_desc, "images": n, "bad_images": stats["bad_images"],
                        "skipped_because": skipped.reasons,
                        "segment_s": round(seconds, 3), "fps": round(n / seconds, 2) if seconds else None,
                        "pixel_share": share, "segmentation": config.model_dump(mode="json")}
             (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
     finally:
         seg.close()
-    return SegmentResult(Path(out), n, stats["bad_frames"], seconds, names, share)
+    return SegmentResult(Path(out), n, stats["bad_images"], seconds, names, share)

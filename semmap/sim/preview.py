@@ -1,4 +1,4 @@
-"""Pictures of a simulated tour: the world from above, and one camera frame."""
+"""Pictures of a simulated tour: the world from above, and one camera image."""
 
 from __future__ import annotations
 

@@ -107,7 +107,7 @@ STANDING_ROUTE_M = (1.0, 4.0)  # whole-tour standers are this far from the robot
 AT_FURNITURE_M = (0.25, 0.35)  # centre of a person standing at a bed or table, from its edge
 AT_WALL_M = (0.3, 0.42)  # centre of a person standing by a wall, from its face
 UNSEEN_PROB = 0.6
-UNSEEN_CAMERA_SHARE = 0.05  # at most this share of camera frames may see them
+UNSEEN_CAMERA_SHARE = 0.05  # at most this share of camera images may see them
 UNSEEN_LIDAR_SCANS = 45  # at least this many scans must
 SEEN_S = 3.0  # the other standers are in the camera's view this long, or longer
 PAUSERS = (1, 2)
@@ -980,7 +980,7 @@ class _Scene:
     tracks: list[NDArray[np.float64]] = field(default_factory=list)
     pid: int = PERSON_ID0
     hfov: float = field(init=False)  # the camera's horizontal field of view, rad
-    cams: NDArray[np.float64] = field(init=False)  # camera floor poses at the camera frames
+    cams: NDArray[np.float64] = field(init=False)  # camera floor poses at the camera images
     lidars: NDArray[np.float64] = field(init=False)  # LiDAR floor poses at the scans
     lidar_half_fov: float = field(init=False)
 
@@ -1020,8 +1020,8 @@ class _Scene:
             seen[seen] = self.los(poses[seen, :2], q)
         return seen
 
-    def camera_frames(self, q: NDArray[np.float64], margin_deg: float = -3.0, far: float = 8.0) -> NDArray[np.bool_]:
-        """Camera frames whose view holds the point ``q`` (walls block; furniture and people do not)."""
+    def camera_images(self, q: NDArray[np.float64], margin_deg: float = -3.0, far: float = 8.0) -> NDArray[np.bool_]:
+        """Camera images whose view holds the point ``q`` (walls block; furniture and people do not)."""
         return self._in_view(self.cams, q, self.hfov / 2 + math.radians(margin_deg), 0.8, far)
 
     def lidar_scans(self, q: NDArray[np.float64], far: float = 12.0) -> NDArray[np.bool_]:
@@ -1030,7 +1030,7 @@ class _Scene:
 
     def seen_enough(self, q: NDArray[np.float64]) -> bool:
         """A person standing at ``q`` is in the camera's view for ``SEEN_S`` or more of the tour."""
-        return int(self.camera_frames(q).sum()) >= SEEN_S * self.cfg.camera.rate_hz
+        return int(self.camera_images(q).sum()) >= SEEN_S * self.cfg.camera.rate_hz
 
     def accept(self, p: Person, robot_gap: float = PEOPLE_ROBOT_GAP_M) -> bool:
         """Add the person if they keep clear of the robot and of everyone else all tour."""
@@ -1146,7 +1146,7 @@ def _standing_unseen(rng: np.random.Generator, sc: _Scene) -> bool:
             continue
         if float(sc.route_dist(q)[0]) < 1.0:
             continue
-        if sc.camera_frames(q, margin_deg=6.0, far=15.0).mean() > UNSEEN_CAMERA_SHARE:
+        if sc.camera_images(q, margin_deg=6.0, far=15.0).mean() > UNSEEN_CAMERA_SHARE:
             continue
         if int(sc.lidar_scans(q, far=10.0).sum()) < UNSEEN_LIDAR_SCANS:
             continue

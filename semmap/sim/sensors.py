@@ -19,7 +19,7 @@ from ..config import SimCameraConfig, SimLidarConfig
 from ..geometry import se2_compose, se3_from_xyz_rpy
 from .raycast import PartSet, first_hit, part_intervals
 
-__all__ = ["CameraFrame", "CameraSim", "LidarSim", "LidarSweep", "mount_se2"]
+__all__ = ["CameraImage", "CameraSim", "LidarSim", "LidarSweep", "mount_se2"]
 
 
 def mount_se2(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> NDArray[np.float64]:
@@ -82,7 +82,7 @@ class LidarSim:
 
 
 @dataclass(frozen=True)
-class CameraFrame:
+class CameraImage:
     """A rendered frame: RGB, label image (class list values) and per-pixel depth (optical z, m)."""
 
     rgb: NDArray[np.uint8]
@@ -123,7 +123,7 @@ class CameraSim:
         self._noise = (rng.normal(0.0, cfg.noise_std, (4, h, w, 3))).astype(np.float32) if cfg.noise_std > 0 else None
 
     def render(self, base_pose: NDArray[np.float64], parts: PartSet, label_of_owner: NDArray[np.uint16],
-               rng: np.random.Generator) -> CameraFrame:
+               rng: np.random.Generator) -> CameraImage:
         """Render the view from ``base_pose`` (world frame)."""
         cam = se2_compose(base_pose, self.mount)
         origin = cam[:2]
@@ -215,4 +215,4 @@ class CameraSim:
         label_lut = np.concatenate([[0, 0, 0], label_of_owner[ps.owner]]).astype(np.uint16)
         label = label_lut[index]
         zdepth = depth / self.norm[None, :].astype(np.float32)
-        return CameraFrame(rgb=rgb, label=label, depth=zdepth, owner=owner)
+        return CameraImage(rgb=rgb, label=label, depth=zdepth, owner=owner)

@@ -14,14 +14,14 @@ Output folder (written to a temporary folder, then moved into place)::
         semi_static.{pgm,yaml}  movable furniture only
         people_swept.{pgm,yaml} cells people's bodies covered at some time
         people_standing.{pgm,yaml} cells people's legs covered at LiDAR height while standing still 5 s or more
-        objects.json            per object and person: class, cells, LiDAR hits, camera frames, standing time
+        objects.json            per object and person: class, cells, LiDAR hits, camera images, standing time
         trajectory.tum          true base_link poses in the world frame
         odometry.tum            the wheel odometry as published (odom frame)
         beams.npz               true range, instance, class and mobility of every beam
         changes.{pgm,yaml,json} for change scenarios: what differs from the base world
       preview/
         world.png               top-down world, trajectory and odometry
-        camera.png              one camera frame, its labels, and the scan projected
+        camera.png              one camera image, its labels, and the scan projected
 """
 
 from __future__ import annotations
@@ -70,9 +70,9 @@ __all__ = ["SimulationResult", "effective_config", "resolve_scenario", "simulate
 
 log = logging.getLogger(__name__)
 
-#: an object counts as seen in a camera frame when this many label pixels are its own
+#: an object counts as seen in a camera image when this many label pixels are its own
 _MIN_VISIBLE_PX = 20
-#: a scan is painted by the camera frame nearest it when that frame is stamped within this, s
+#: a scan is painted by the camera image nearest it when that frame is stamped within this, s
 _PAINT_WINDOW_S = 0.1
 
 ProgressFn = Callable[[int, int], None]
@@ -239,9 +239,9 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
     gt_range = np.full((n_scans, n_beams), np.inf, np.float32)
     gt_row = np.full((n_scans, n_beams), -1, np.int32)
     n_rows = len(rows)
-    cam_visible = np.zeros((len(cam_times), n_rows), bool)  # object-table rows each camera frame shows
+    cam_visible = np.zeros((len(cam_times), n_rows), bool)  # object-table rows each camera image shows
     scan_pose = np.zeros((n_scans, 3))
-    # beams whose end point lands on the object's own labelled pixels in the camera frame nearest
+    # beams whose end point lands on the object's own labelled pixels in the camera image nearest
     # the scan (within _PAINT_WINDOW_S, as semmap build pairs them): what the camera labelled
     painted = np.zeros(n_rows, np.int64)
     painter = _PaintedHits(camera, cfg.camera, lidar, cam_times, traj, painted)
@@ -294,9 +294,9 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                 t = cam_times[i]
                 stamp = t0 + int(round(t * ns))
                 parts = PartSet.concat([static_set, people_set(t)])
-                frame = camera.render(traj.pose(t), parts, label_of_row, rng_cam)
+                shot = camera.render(traj.pose(t), parts, label_of_row, rng_cam)
                 if c.camera.image_format == "jpeg":
-                    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR),
+                    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(shot.rgb, cv2.COLOR_RGB2BGR),
                                            [cv2.IMWRITE_JPEG_QUALITY, c.camera.jpeg_quality])
                     if not ok:
                         raise SemmapError("JPEG encoding failed")
@@ -305,22 +305,22 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
                                          buf.tobytes())
                 else:
                     image_topic = c.camera.image_topic
-                    bag.image(image_topic, t_bag, Image(stamp, c.camera.frame_id, frame.rgb, "rgb8"))
+                    bag.image(image_topic, t_bag, Image(stamp, c.camera.frame_id, shot.rgb, "rgb8"))
                 if c.camera.label_encoding == "mono8":
-                    lab = Image(stamp, c.camera.frame_id, frame.label.astype(np.uint8), "mono8")
+                    lab = Image(stamp, c.camera.frame_id, shot.label.astype(np.uint8), "mono8")
                 else:
-                    lab = Image(stamp, c.camera.frame_id, frame.label, "mono16")
+                    lab = Image(stamp, c.camera.frame_id, shot.label, "mono16")
                 bag.image(c.camera.label_topic, t_bag, lab)
                 # labelled pixels per object-table row (row + 1; 0 collects floor, ceiling, unlabelled)
-                px = np.bincount(((frame.owner + 1) * (frame.label > 0)).ravel(), minlength=n_rows + 1)
+                px = np.bincount(((shot.owner + 1) * (shot.label > 0)).ravel(), minlength=n_rows + 1)
                 cam_visible[i] = px[1:] >= _MIN_VISIBLE_PX
-                painter.frame(i, frame)
+                painter.image(i, shot)
                 bag.camera_info(c.camera.info_topic, t_bag, stamp, c.camera.frame_id, intr)
                 topics = [image_topic, c.camera.label_topic, c.camera.info_topic]
-                score = _preview_score(frame.label)
+                score = _preview_score(shot.label)
                 if score > best["score"]:
-                    best = {"score": score, "t": t, "stamp": stamp, "rgb": frame.rgb.copy(),
-                            "label": frame.label.copy()}
+                    best = {"score": score, "t": t, "stamp": stamp, "rgb": shot.rgb.copy(),
+                            "label": shot.label.copy()}
             for tp in topics:
                 counts[tp] = counts.get(tp, 0) + 1
             if progress is not None and (done % 200 == 0 or done == len(events) - 1):
@@ -436,9 +436,9 @@ def _simulate_into(sc: Scenario, cfg: SimConfig, out: Path, fmt: BagFormat, seed
 
 class _PaintedHits:
     """Counts, per object-table row, the true beams that land on that object's own labelled pixels in
-    the camera frame nearest their scan (within ``_PAINT_WINDOW_S``): the hits the camera labelled.
+    the camera image nearest their scan (within ``_PAINT_WINDOW_S``): the hits the camera labelled.
 
-    Scans and frames arrive in bag order; a scan waits for its frame, and the last frames are
+    Scans and images arrive in bag order; a scan waits for its image, and the last images are
     kept (their owner images only) for scans that come after them.
     """
 
@@ -448,7 +448,7 @@ class _PaintedHits:
         k = np.asarray(cam_cfg.K, dtype=np.float64)
         self.fx, self.fy, self.cx, self.cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
         self.size = (cam_cfg.width, cam_cfg.height)
-        self.frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (owner & labelled, camera pose)
+        self.images: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (owner & labelled, camera pose)
         self.pending: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # index -> [(end points, rows)]
 
     def scan(self, t: float, poses: np.ndarray, ranges: np.ndarray, rows: np.ndarray) -> None:
@@ -464,22 +464,22 @@ class _PaintedHits:
         head = mount[:, 2] + self.lidar.angles[ok]
         ends = mount[:, :2] + ranges[ok, None] * np.column_stack([np.cos(head), np.sin(head)])
         item = (ends, rows[ok])
-        if k in self.frames:
+        if k in self.images:
             self._count(k, *item)
         else:
             self.pending.setdefault(k, []).append(item)
 
-    def frame(self, k: int, frame: Any) -> None:
-        owner = np.where(frame.label > 0, frame.owner, -1).astype(np.int32)
+    def image(self, k: int, image: Any) -> None:
+        owner = np.where(image.label > 0, image.owner, -1).astype(np.int32)
         cam = se2_compose(self.traj.pose(float(self.cam_times[k])), self.camera.mount)
-        self.frames[k] = (owner, cam)
+        self.images[k] = (owner, cam)
         for item in self.pending.pop(k, []):
             self._count(k, *item)
-        for old in [j for j in self.frames if j < k - 2]:  # later scans pair with recent frames only
-            del self.frames[old]
+        for old in [j for j in self.images if j < k - 2]:  # later scans pair with recent images only
+            del self.images[old]
 
     def _count(self, k: int, ends: np.ndarray, rows: np.ndarray) -> None:
-        owner, cam = self.frames[k]
+        owner, cam = self.images[k]
         c, s = math.cos(cam[2]), math.sin(cam[2])
         dx, dy = ends[:, 0] - cam[0], ends[:, 1] - cam[1]
         fwd, left = c * dx + s * dy, -s * dx + c * dy
@@ -503,14 +503,14 @@ def _object_truth(world: World, spec: Any, height: float, duration: float, gt_ro
     n_rows = cam_visible.shape[1]
     hits = gt_row[gt_row >= 0]
     lidar_hits = np.bincount(hits, minlength=n_rows)
-    cam_frames = cam_visible.sum(axis=0)
+    cam_images = cam_visible.sum(axis=0)
     cells = object_cells(world, spec, height)
     objects = []
     for i, o in enumerate(world.objects):
         objects.append({
             "id": o.id, "name": o.name, "class": o.cls, "mobility": o.mobility.label,
             "centroid": [round(float(v), 3) for v in o.centroid()], "cells": int(cells[i]),
-            "lidar_hits": int(lidar_hits[i]), "camera_frames": int(cam_frames[i]), "painted_hits": int(painted[i]),
+            "lidar_hits": int(lidar_hits[i]), "camera_images": int(cam_images[i]), "painted_hits": int(painted[i]),
         })
     people = []
     for j, p in enumerate(world.people):
@@ -518,7 +518,7 @@ def _object_truth(world: World, spec: Any, height: float, duration: float, gt_ro
         stood = sum(t1 - t0 for t0, t1, _, _ in standing_stretches(p, duration))
         people.append({
             "id": p.id, "name": p.name, "role": person_role(p.name), "standing_s": round(float(stood), 2),
-            "lidar_hits": int(lidar_hits[row]), "camera_frames": int(cam_frames[row]),
+            "lidar_hits": int(lidar_hits[row]), "camera_images": int(cam_images[row]),
             "painted_hits": int(painted[row]),
         })
     return {"min_standing_s": MIN_STANDING_S, "min_visible_px": _MIN_VISIBLE_PX, "objects": objects, "people": people}
@@ -537,7 +537,7 @@ def _json_rows(data: dict[str, Any]) -> str:
 
 
 def _preview_score(label: np.ndarray) -> float:
-    """Prefer frames showing many classes, none of them filling the view (people score double)."""
+    """Prefer images showing many classes, none of them filling the view (people score double)."""
     values, counts = np.unique(label, return_counts=True)
     if counts[values > 0].max(initial=0) > 0.25 * label.size:
         return 0.0

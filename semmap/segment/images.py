@@ -1,9 +1,9 @@
 """Segmentations of a tour's camera topic, one per image, in bag order.
 
-:class:`FrameSource` is what the scan stream (:class:`semmap.paint.stream.ScanStream`) pulls
-segmentations from. :class:`InProcessFrames` reads, decodes and segments in the calling process;
-:class:`semmap.workers.FrameWorker` does the same in a worker process (both use
-:class:`FrameReader`).
+:class:`ImageSource` is what the scan stream (:class:`semmap.paint.stream.ScanStream`) pulls
+segmentations from. :class:`InProcessImages` reads, decodes and segments in the calling process;
+:class:`semmap.workers.ImageWorker` does the same in a worker process (both use
+:class:`ImageReader`).
 """
 
 from __future__ import annotations
@@ -20,12 +20,12 @@ from ..errors import SemmapError
 from ..records import Image, Segmentation
 from .base import Segmenter
 
-__all__ = ["FrameReader", "FrameSource", "InProcessFrames"]
+__all__ = ["ImageReader", "ImageSource", "InProcessImages"]
 
 log = logging.getLogger(__name__)
 
 
-class FrameSource(Protocol):
+class ImageSource(Protocol):
     """Segmentations of the camera topic, one per frame, in bag order."""
 
     counts: dict[str, Any]
@@ -43,7 +43,7 @@ class FrameSource(Protocol):
         """Stop, and free what was held."""
 
 
-class FrameReader:
+class ImageReader:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
     here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
 
@@ -62,23 +62,23 @@ class FrameReader:
             raise
 
         def bad(topic: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped, counted
-            counts["bad_frames"] += 1
+            counts["bad_images"] += 1
             log.debug("skipped image on %s: %s", topic, exc)
 
-        self._it = self._frames(opened.records([topic], skip=bad), topic, segmenter, counts)
+        self._it = self._segmented(opened.records([topic], skip=bad), topic, segmenter, counts)
 
     @staticmethod
-    def _frames(images: Iterator[tuple[str, int, Image]], topic: str, segmenter: Segmenter,
+    def _segmented(images: Iterator[tuple[str, int, Image]], topic: str, segmenter: Segmenter,
                 counts: dict[str, int]) -> Generator[Segmentation, None, None]:
         for _, _, img in images:
             t0 = time.perf_counter()
             try:
                 seg = segmenter.segment(img)
             except SemmapError as exc:  # an image the segmenter cannot take is skipped, counted
-                counts["bad_frames"] += 1
+                counts["bad_images"] += 1
                 log.debug("skipped image on %s: %s", topic, exc)
                 continue
-            counts["frames"] += 1
+            counts["images"] += 1
             counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
             yield seg
 
@@ -90,12 +90,12 @@ class FrameReader:
         self._stack.close()
 
 
-class InProcessFrames:
+class InProcessImages:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig) -> None:
-        self.counts: dict[str, Any] = {"frames": 0, "bad_frames": 0, "segment_ms": 0}
-        self._source = FrameReader(bag, topic, seg_cfg, self.counts)
+        self.counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
+        self._source = ImageReader(bag, topic, seg_cfg, self.counts)
         self._it = iter(self._source)
 
     def next(self) -> Segmentation | None:

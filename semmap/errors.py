@@ -56,6 +56,13 @@ class MapFolderError(SemmapError):
     exit_code = 7
 
 
+class AlignmentError(SemmapError):
+    """Two maps cannot be compared: they do not overlap enough to be aligned, or the alignment is
+    ambiguous (a long featureless corridor, a symmetric room)."""
+
+    exit_code = 8
+
+
 class InternalError(Exception):
     """A bug in a worker process. The message is the worker's exception type and message; the
     worker's own traceback is this exception's ``__cause__`` (shown with ``--debug``)."""

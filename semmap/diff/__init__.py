@@ -1,0 +1,1 @@
+"""Comparing map folders across sessions (``semmap diff``): alignment, changes, updated maps."""

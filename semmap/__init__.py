@@ -6,6 +6,7 @@ The public API::
     result = semmap.simulate("demo", "tours/demo", fmt="mcap", seed=0)
     info = semmap.bag_info(result.bag)
     m = semmap.load_map("maps/demo")          # a map folder written by semmap build
+    d = semmap.diff("maps/week1", "maps/week2", out="diffs/week2")  # what changed
 
 Heavy modules load on first use, so ``import semmap`` stays fast.
 """
@@ -20,6 +21,8 @@ from .version import __version__
 _LAZY = {
     "build": "semmap.pipeline",
     "load_map": "semmap.mapfolder.reader",
+    "diff": "semmap.compare",
+    "DiffResult": "semmap.compare",
     "MapFolder": "semmap.mapfolder.reader",
     "BuildSummary": "semmap.mapfolder.summary",
     "ScanStream": "semmap.paint.stream",
@@ -48,6 +51,7 @@ __all__ = ["__version__", *_LAZY]  # noqa: PLE0604 - the lazy names are strings
 
 if TYPE_CHECKING:  # pragma: no cover
     # ruff: noqa: F401
+    from .compare import DiffResult, diff
     from .config import BuildConfig, SimConfig
     from .errors import SemmapError
     from .io.bag import BagInfo, bag_info

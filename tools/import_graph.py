@@ -11,7 +11,7 @@
        register  KISS-ICP and the odometry EKF
        grid      fusion and cleaning
        mapfolder writing and reading the map folder
-       diff      comparing map folders across sessions: alignment, changes, updated maps
+       compare   semmap diff: comparing sessions (alignment, changes, updated maps)
        tools     sim (the simulator and its scoring), calib (calibration)
        run       workers (the processes), pipeline (semmap build)
        cli       the command line, and the package's own lazy API (semmap/__init__.py)
@@ -49,7 +49,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("register", ("semmap.register",)),
     ("grid", ("semmap.grid",)),
     ("mapfolder", ("semmap.mapfolder",)),
-    ("diff", ("semmap.diff",)),
+    ("compare", ("semmap.compare",)),
     ("tools", ("semmap.sim", "semmap.calib")),
     ("run", ("semmap.workers", "semmap.pipeline")),
     ("cli", ("semmap.cli", "semmap.__main__", "semmap")),

@@ -20,6 +20,7 @@ from ..io.atomic import COMMITTED
 from ..version import __version__
 from . import build as build_cmd
 from . import calibrate as calibrate_cmd
+from . import diff as diff_cmd
 from . import evalseg as evalseg_cmd
 from . import info as info_cmd
 from . import paint as paint_cmd
@@ -28,7 +29,7 @@ from . import simulate as simulate_cmd
 
 EXIT_INTERNAL = 70
 
-COMMANDS = (build_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd, evalseg_cmd, paint_cmd)
+COMMANDS = (build_cmd, diff_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd, evalseg_cmd, paint_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

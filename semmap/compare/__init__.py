@@ -1,0 +1,43 @@
+"""``semmap diff``: what changed between sessions of one building.
+
+:func:`diff` aligns session B's map onto session A's (no initial guess), classifies the changes
+(static obstacles added or removed, movable objects moved, appeared or disappeared, floor newly
+explored or no longer covered) and, given ``out``, writes the diff folder (see
+:mod:`semmap.compare.write`). Exposed as ``semmap.diff``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .changes import CHANGE_TYPES, Change, ChangeSettings
+from .result import DiffResult, diff_sessions
+from .session import Session, open_session
+
+__all__ = ["CHANGE_TYPES", "Change", "ChangeSettings", "DiffResult", "Session", "diff", "open_session", "write_diff"]
+
+
+def diff(a: str | Path | Session, b: str | Path | Session, *, out: str | Path | None = None, force: bool = False,
+         settings: ChangeSettings | None = None) -> DiffResult:
+    """Compare session ``b`` with session ``a`` (map folders written by ``semmap build``, or any
+    map_server maps); with ``out``, also write the diff folder there."""
+    if out is not None:
+        from ..io.atomic import check_output
+
+        check_output(out, force, marker="changes.json", inputs=[Path(str(a)), Path(str(b))] if not (
+            isinstance(a, Session) or isinstance(b, Session)) else [], what="diff folder")
+    result = diff_sessions(a, b, settings=settings)
+    if out is not None:
+        write_diff(result, out, force)
+    return result
+
+
+def write_diff(result: DiffResult, out: str | Path, force: bool = False) -> Path:
+    """Write ``result`` as a diff folder at ``out``, whole or not at all."""
+    from ..io.atomic import atomic_dir
+    from .write import write_diff_files
+
+    inputs = [result.a.path, result.b.path]
+    with atomic_dir(out, force, marker="changes.json", inputs=inputs, what="diff folder") as tmp:
+        write_diff_files(result, tmp)
+    return Path(out)

@@ -1,0 +1,505 @@
+"""What changed between two aligned sessions, and of what kind.
+
+Both maps are laid on one grid: session A's grid, grown to hold B's cells as well, so A's cells keep
+their place and B's are looked up by nearest cell through the alignment. Then, cell by cell:
+
+* a cell is **added** when B holds an obstacle where A saw free floor, and A held no obstacle
+  within ``tolerance_m`` (the alignment and a wall's thickness wobble by a cell or two);
+  **removed** the other way round. A cell only one session observed is *unobserved*, never
+  changed;
+* cells near where either session saw people (dynamic evidence, and cells cleaning dropped as
+  dynamic) are never changes: a person left in one map is not an obstacle added;
+* added and removed cells on movable objects become object changes: the objects of the two
+  sessions are matched by class and footprint (``moved``, with displacement and rotation measured
+  by fitting the object's cells, ``appeared``, ``disappeared``); an object only one session could
+  see is left out, not reported as gone;
+* the rest are **static** changes, grouped into connected pieces;
+* floor observed by only one session, in pieces of at least ``min_explored_m2``, is **newly
+  explored** (only B) or **no longer covered** (only A).
+
+A plain map_server map carries no semantic layers: its diff has static changes and explored areas
+only (``DiffResult.semantic`` is False and the report says so).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from ..geometry import se2_apply, se2_inverse, wrap_angle
+from ..grid import SemiStaticObject
+from ..records import GridSpec
+from .session import Session
+
+__all__ = [
+    "CHANGE_TYPES",
+    "Change",
+    "ChangeSettings",
+    "LaidOut",
+    "classify_changes",
+    "lay_out",
+]
+
+#: every change type, in the order reports list them
+CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appeared", "object_disappeared",
+                "newly_explored", "no_longer_covered")
+
+# bits of the code image both sessions are resampled through
+_OCC, _FREE, _SEMI, _DYN = 1, 2, 4, 8
+
+
+@dataclass(frozen=True)
+class ChangeSettings:
+    """How strict the comparison is (metres unless named otherwise)."""
+
+    #: an obstacle this close to one of the other session's is the same obstacle
+    tolerance_m: float = 0.10
+    #: cells this close to where people were seen are never changes
+    people_margin_m: float = 0.30
+    #: a static change smaller than this (m²) is noise
+    min_static_m2: float = 0.01
+    #: cells of one static change may be this far apart (the legs of a table are one change)
+    group_m: float = 0.5
+    #: an object that moved less than this, and turned less than ``still_deg``, did not move
+    still_m: float = 0.10
+    still_deg: float = 10.0
+    #: an object is matched to one of its class at most this far away
+    max_move_m: float = 4.0
+    #: an object counts as seen by the other session when this share of its footprint was observed there
+    seen_share: float = 0.6
+    #: explored or no-longer-covered floor smaller than this (m²) is not reported
+    min_explored_m2: float = 1.0
+
+
+@dataclass(frozen=True)
+class Change:
+    """One change, in A's map frame."""
+
+    type: str
+    centroid: tuple[float, float]
+    area_m2: float
+    cells: int
+    class_name: str | None = None
+    #: for ``object_moved``: where it was and is (A's map frame), how far and how much it turned
+    from_xy: tuple[float, float] | None = None
+    to_xy: tuple[float, float] | None = None
+    displacement_m: float | None = None
+    rotation_deg: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"type": self.type, "class": self.class_name,
+                             "centroid": [round(v, 3) for v in self.centroid],
+                             "area_m2": round(self.area_m2, 4), "cells": self.cells}
+        if self.type == "object_moved":
+            assert self.from_xy is not None and self.to_xy is not None
+            d |= {"from": [round(v, 3) for v in self.from_xy], "to": [round(v, 3) for v in self.to_xy],
+                  "displacement_m": round(float(self.displacement_m or 0.0), 3),
+                  "rotation_deg": round(float(self.rotation_deg or 0.0), 1)}
+        return d
+
+
+@dataclass(frozen=True)
+class LaidOut:
+    """Both sessions on one grid (A's, grown to hold B's cells too); masks (H, W) bool."""
+
+    spec: GridSpec
+    #: where A's own grid sits in ``spec``: rows and columns ``[r0, r0 + h)``, ``[c0, c0 + w)``
+    a_window: tuple[int, int, int, int]
+    occ_a: NDArray[np.bool_]
+    free_a: NDArray[np.bool_]
+    semi_a: NDArray[np.bool_]
+    dyn_a: NDArray[np.bool_]
+    occ_b: NDArray[np.bool_]
+    free_b: NDArray[np.bool_]
+    semi_b: NDArray[np.bool_]
+    dyn_b: NDArray[np.bool_]
+
+
+def _code(s: Session) -> NDArray[np.uint8]:
+    c = np.zeros(s.spec.shape, np.uint8)
+    c[s.occupied] |= _OCC
+    c[s.free & ~s.occupied] |= _FREE
+    c[s.semi_static] |= _SEMI
+    c[s.dynamic] |= _DYN
+    return c
+
+
+def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
+    """Put both sessions on A's grid, grown by whole cells to cover B's cells carried into A's frame."""
+    sa, sb = a.spec, b.spec
+    res = sa.resolution
+    corners = np.array([[sb.origin_x, sb.origin_y], [sb.origin_x + sb.width * sb.resolution, sb.origin_y],
+                        [sb.origin_x, sb.origin_y + sb.height * sb.resolution],
+                        [sb.origin_x + sb.width * sb.resolution, sb.origin_y + sb.height * sb.resolution]])
+    cb = se2_apply(T_a_b, corners)
+    x0 = min(sa.origin_x, float(cb[:, 0].min()))
+    y0 = min(sa.origin_y, float(cb[:, 1].min()))
+    x1 = max(sa.origin_x + sa.width * res, float(cb[:, 0].max()))
+    y1 = max(sa.origin_y + sa.height * res, float(cb[:, 1].max()))
+    c0 = int(math.ceil((sa.origin_x - x0) / res - 1e-6))  # whole cells, so A's cells keep their place
+    r0 = int(math.ceil((sa.origin_y - y0) / res - 1e-6))
+    width = c0 + int(math.ceil((x1 - sa.origin_x) / res - 1e-6))
+    height = r0 + int(math.ceil((y1 - sa.origin_y) / res - 1e-6))
+    spec = GridSpec(res, sa.origin_x - c0 * res, sa.origin_y - r0 * res, width, height)
+
+    code_a = np.zeros(spec.shape, np.uint8)
+    code_a[r0:r0 + sa.height, c0:c0 + sa.width] = _code(a)
+    # every cell centre of the grown grid, carried into B's frame, and the B cell it falls in
+    xs = spec.origin_x + (np.arange(spec.width, dtype=np.float64) + 0.5) * res
+    ys = spec.origin_y + (np.arange(spec.height, dtype=np.float64) + 0.5) * res
+    t_b_a = se2_inverse(T_a_b)
+    cs, sn = math.cos(float(t_b_a[2])), math.sin(float(t_b_a[2]))
+    xb = cs * xs[None, :] - sn * ys[:, None] + t_b_a[0]
+    yb = sn * xs[None, :] + cs * ys[:, None] + t_b_a[1]
+    map_x = ((xb - sb.origin_x) / sb.resolution - 0.5).astype(np.float32)
+    map_y = ((yb - sb.origin_y) / sb.resolution - 0.5).astype(np.float32)
+    code_b = np.asarray(cv2.remap(_code(b), map_x, map_y, interpolation=cv2.INTER_NEAREST,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0), np.uint8)
+
+    def bits(code: NDArray[np.uint8], bit: int) -> NDArray[np.bool_]:
+        return (code & bit) > 0
+
+    return LaidOut(spec, (r0, c0, sa.height, sa.width),
+                   bits(code_a, _OCC), bits(code_a, _FREE), bits(code_a, _SEMI), bits(code_a, _DYN),
+                   bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN))
+
+
+def _disk(radius_cells: float) -> NDArray[np.uint8]:
+    r = max(0, int(math.floor(radius_cells + 1e-6)))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return (xx * xx + yy * yy <= radius_cells * radius_cells + 1e-6).astype(np.uint8)
+
+
+def _dilate(mask: NDArray[np.bool_], radius_cells: float) -> NDArray[np.bool_]:
+    if radius_cells <= 0 or not mask.any():
+        return mask.copy()
+    return cv2.dilate(mask.astype(np.uint8), _disk(radius_cells)) > 0
+
+
+@dataclass
+class _Obj:
+    """An object of one session in A's frame, with the cells it holds on the common grid."""
+
+    src: SemiStaticObject
+    centroid: NDArray[np.float64]
+    yaw: float
+    footprint: NDArray[np.float64]  # (4, 2) corners, A's frame; (0, 2) when the object has none
+    cells: NDArray[np.intp] = field(default_factory=lambda: np.zeros((0, 2), np.intp))  # (n, 2) row, col
+
+
+def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, spec: GridSpec,
+             semi: NDArray[np.bool_]) -> list[_Obj]:
+    """The objects carried into A's frame (``T``: their map's pose in A's; None: they are A's)."""
+    out = []
+    for o in objs:
+        c = np.asarray(o.centroid, np.float64)
+        fp = np.asarray(o.footprint, np.float64).reshape(-1, 2)
+        yaw = o.yaw
+        if T is not None:
+            c = se2_apply(T, c[None])[0]
+            fp = se2_apply(T, fp) if fp.size else fp
+            yaw = float(wrap_angle(yaw + float(T[2])))
+        out.append(_Obj(o, c, yaw, fp))
+    # each semi-static cell belongs to the object whose footprint (grown by a cell) holds it, else to
+    # the nearest centroid within a metre
+    rows, cols = np.nonzero(semi)
+    if out and rows.size:
+        img = np.zeros(spec.shape, np.int32)
+        for k, ob in enumerate(out):
+            if ob.footprint.shape[0] >= 3:
+                c = ob.footprint.mean(axis=0)
+                grown = c + (ob.footprint - c) * (1.0 + spec.resolution / max(1e-3, float(
+                    np.min(np.linalg.norm(ob.footprint - c, axis=1)))))
+                pts = np.round(((grown - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16)
+                cv2.fillPoly(img, [pts.astype(np.int32)], k + 1, lineType=cv2.LINE_8, shift=4)
+        owner = img[rows, cols].astype(np.intp) - 1
+        rest = owner < 0
+        if rest.any():
+            xy = _cells_xy(np.stack([rows[rest], cols[rest]], axis=1), spec)
+            d, k = cKDTree(np.stack([ob.centroid for ob in out])).query(xy)
+            near = d <= 1.0  # a stray cell of no object stays no one's
+            owner[np.flatnonzero(rest)[near]] = k[near]
+        for k, ob in enumerate(out):
+            sel = owner == k
+            ob.cells = np.stack([rows[sel], cols[sel]], axis=1)
+    return out
+
+
+def _seen_share(ob: _Obj, observed: NDArray[np.bool_], spec: GridSpec) -> float:
+    """Share of the object's footprint (or its cells, when it has none) the other session observed."""
+    if ob.footprint.shape[0] >= 3:
+        img = np.zeros(spec.shape, np.uint8)
+        pts = np.round(((ob.footprint - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16)
+        cv2.fillPoly(img, [pts.astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+        cells = img > 0
+    else:
+        cells = np.zeros(spec.shape, bool)
+    if ob.cells.size:
+        r, c = ob.cells[:, 0], ob.cells[:, 1]
+        cells[r, c] = True
+    n = int(cells.sum())
+    return float(observed[cells].sum()) / n if n else 0.0
+
+
+def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.float64],
+         iters: int = 30) -> tuple[NDArray[np.float64], float]:
+    """Point-to-point ICP of ``src`` onto ``dst`` from ``pose``; the pose and its RMS residual."""
+    tree = cKDTree(dst)
+    rms = math.inf
+    for _ in range(iters):
+        d, j = tree.query(se2_apply(pose, src))
+        keep = d <= max(float(np.median(d)) * 3.0, 0.05)
+        if keep.sum() < 2:
+            break
+        p, q = src[keep], dst[j[keep]]
+        pc, qc = p.mean(axis=0), q.mean(axis=0)
+        h = (p - pc).T @ (q - qc)
+        yaw = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        tt = qc - np.array([[cs, -sn], [sn, cs]]) @ pc
+        new = np.array([tt[0], tt[1], yaw])
+        done = np.allclose(new, pose, atol=1e-5)
+        pose = new
+        if done:
+            break
+    d, _ = tree.query(se2_apply(pose, src))
+    rms = float(np.sqrt(np.mean(np.minimum(d, 0.3) ** 2)))
+    return pose, rms
+
+
+def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: bool) -> NDArray[np.float64]:
+    """The rigid motion (x, y, yaw) taking an object's cells ``src`` onto its cells ``dst``: ICP from
+    the centroid shift, and with ``turns`` also from quarter and half turns about the centroid (ICP
+    alone does not find a bed turned by 90°); the best fit wins."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    best, best_rms = np.zeros(3), math.inf
+    for turn in ((0.0, math.pi / 2, -math.pi / 2, math.pi) if turns else (0.0,)):
+        c, s = math.cos(turn), math.sin(turn)
+        t = cd - np.array([[c, -s], [s, c]]) @ cs
+        pose, rms = _icp(src, dst, np.array([t[0], t[1], turn]))
+        if rms < best_rms - 1e-6:
+            best, best_rms = pose, rms
+    return best
+
+
+def _cells_xy(cells: NDArray[np.intp], spec: GridSpec) -> NDArray[np.float64]:
+    return np.stack([spec.origin_x + (cells[:, 1] + 0.5) * spec.resolution,
+                     spec.origin_y + (cells[:, 0] + 0.5) * spec.resolution], axis=1).astype(np.float64)
+
+
+def _box_turn(yaw_a: float, yaw_b: float) -> float:
+    """The turn between two boxes' headings, taken the short way: a box looks the same turned by 180°."""
+    d = float(wrap_angle(yaw_b - yaw_a))
+    if d > math.pi / 2:
+        d -= math.pi
+    elif d < -math.pi / 2:
+        d += math.pi
+    return d
+
+
+def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
+                   ) -> tuple[list[tuple[int, int]], list[int], list[int]]:
+    """Pairs (index in A, index in B) of the same object, then A's and B's unmatched objects."""
+    pairs: list[tuple[int, int]] = []
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    for cls in sorted({o.src.class_name for o in objs_a} | {o.src.class_name for o in objs_b}):
+        ia = [i for i, o in enumerate(objs_a) if o.src.class_name == cls]
+        ib = [j for j, o in enumerate(objs_b) if o.src.class_name == cls]
+        if not ia or not ib:
+            continue
+        ca = np.stack([objs_a[i].centroid for i in ia])
+        cb = np.stack([objs_b[j].centroid for j in ib])
+        dist = np.linalg.norm(ca[:, None, :] - cb[None, :, :], axis=2)
+        sa = np.array([sorted(objs_a[i].src.size) for i in ia])
+        sb = np.array([sorted(objs_b[j].src.size) for j in ib])
+        # a similar footprint: each side within a factor of two (legs seen or not change a box by a leg)
+        ratio = np.maximum(sa[:, None, :], 0.05) / np.maximum(sb[None, :, :], 0.05)
+        similar = np.all((ratio < 2.0) & (ratio > 0.5), axis=2)
+        cost = np.where(similar & (dist <= st.max_move_m), dist, 1e6)
+        ra, rb = linear_sum_assignment(cost)
+        for x, y in zip(ra, rb, strict=True):
+            if cost[x, y] < 1e6:
+                pairs.append((ia[x], ib[y]))
+                used_a.add(ia[x])
+                used_b.add(ib[y])
+    return (pairs, [i for i in range(len(objs_a)) if i not in used_a],
+            [j for j in range(len(objs_b)) if j not in used_b])
+
+
+def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
+    m = np.zeros(spec.shape, bool)
+    m[o.cells[:, 0], o.cells[:, 1]] = True
+    return m
+
+
+def _elongated(o: _Obj) -> bool:
+    """A turn is measurable: the object is clearly longer than wide, and more than a few cells."""
+    length, width = sorted(o.src.size, reverse=True)
+    return o.cells.shape[0] >= 4 and length >= 1.3 * max(width, 1e-3)
+
+
+def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], other_observed: NDArray[np.bool_],
+                     people: NDArray[np.bool_], st: ChangeSettings, left_out: dict[str, int],
+                     key: str) -> list[_Obj]:
+    """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). An object
+    the other session did not see enough of is left out (counted under ``key``), never called gone."""
+    out = []
+    for o in objs:
+        if o.cells.shape[0] == 0:
+            continue
+        r, c = o.cells[:, 0], o.cells[:, 1]
+        clear = ~people[r, c]  # cells beside people are no evidence either way
+        if clear.sum() < max(2, 0.3 * r.size) or float(other_observed[r, c][clear].mean()) < st.seen_share:
+            left_out[key] += 1
+            continue
+        if float(changed[r, c][clear].mean()) >= 0.5:
+            out.append(o)
+    return out
+
+
+def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Obj]:
+    """Join pieces of one object: a build may list a bed as two objects where the other found one.
+    Pieces of one class merge while the whole still fits in that class's typical size."""
+    objs = list(objs)
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(objs)):
+            for j in range(i + 1, len(objs)):
+                a, b = objs[i], objs[j]
+                if a.src.class_name != b.src.class_name:
+                    continue
+                cells = np.concatenate([a.cells, b.cells])
+                xy = _cells_xy(cells, spec)
+                hull = cv2.convexHull(xy.astype(np.float32)).reshape(-1, 2)
+                extent = float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
+                if extent <= 1.1 * size_of(a.src.class_name) + spec.resolution:
+                    lo_xy, hi_xy = xy.min(axis=0), xy.max(axis=0)
+                    objs[i] = _Obj(a.src, 0.5 * (lo_xy + hi_xy), a.yaw, np.zeros((0, 2)), cells)
+                    del objs[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return objs
+
+
+def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group_cells: float,
+                       min_cells: int) -> tuple[list[Change], NDArray[np.bool_]]:
+    """Connected pieces of ``mask`` (cells up to ``group_cells`` apart join), as changes of ``kind``;
+    also the cells of the pieces kept."""
+    if not mask.any():
+        return [], np.zeros_like(mask)
+    joined = _dilate(mask, group_cells / 2.0)
+    lab, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
+    lab = np.where(mask, lab, 0)
+    counts = np.bincount(lab.ravel(), minlength=n + 1)
+    keep_ids = np.flatnonzero(counts >= min_cells)
+    keep_ids = keep_ids[keep_ids > 0]
+    kept = np.isin(lab, keep_ids)
+    out = []
+    if keep_ids.size:
+        rows, cols = np.nonzero(kept)
+        ids = lab[rows, cols]
+        area = spec.resolution ** 2
+        for k in keep_ids:
+            sel = ids == k
+            cx = spec.origin_x + (cols[sel].mean() + 0.5) * spec.resolution
+            cy = spec.origin_y + (rows[sel].mean() + 0.5) * spec.resolution
+            out.append(Change(kind, (float(cx), float(cy)), float(sel.sum() * area), int(sel.sum())))
+    return out, kept
+
+
+def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.float64],
+                     st: ChangeSettings | None = None) -> tuple[list[Change], NDArray[np.uint8], dict[str, int]]:
+    """The changes from A to B on the common grid ``lo``: the list, the change mask on the common
+    grid (0 none, 1 added, 2 removed) and counts of what was left out (objects only one session saw)."""
+    st = st or ChangeSettings()
+    spec = lo.spec
+    res = spec.resolution
+    tol = st.tolerance_m / res
+    people = _dilate(lo.dyn_a | lo.dyn_b, st.people_margin_m / res)
+    added = lo.occ_b & lo.free_a & ~_dilate(lo.occ_a, tol) & ~people
+    removed = lo.occ_a & lo.free_b & ~_dilate(lo.occ_b, tol) & ~people
+    changes: list[Change] = []
+    mask = np.zeros(spec.shape, np.uint8)
+    left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0}
+    left_out["cells_near_people"] = int(((lo.occ_b & lo.free_a) | (lo.occ_a & lo.free_b))[people].sum())
+
+    # movable objects: an object whose cells the other session saw free is gone (or new); gone and
+    # new ones of one class are matched into moves
+    on_objects = np.zeros(spec.shape, bool)
+    if a.semantic and b.semantic:
+        from ..classes import load_class_table
+
+        sizes = load_class_table()
+        near = max(1.0, tol)
+        objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a)
+        objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b)
+        obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
+        gone = _changed_objects(objs_a, removed, obs_b, people, st, left_out, "objects_unobserved_in_b")
+        new = _changed_objects(objs_b, added, obs_a, people, st, left_out, "objects_unobserved_in_a")
+        for ob in objs_a + objs_b:
+            if ob.cells.size:
+                on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
+        gone = _merge_fragments(gone, sizes.size_of, spec)
+        new = _merge_fragments(new, sizes.size_of, spec)
+        pairs, only_a, only_b = _match_objects(gone, new, st)
+        for ia, ib in pairs:
+            oa, ob = gone[ia], new[ib]
+            elongated = _elongated(oa) and _elongated(ob)
+            motion = _fit_motion(_cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec), elongated)
+            new_c = se2_apply(motion, oa.centroid[None])[0]
+            # a box looks the same turned half way round: the turn is the short one, within ±90°
+            turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0
+            disp = float(np.linalg.norm(new_c - oa.centroid))
+            zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
+            if disp < st.still_m and abs(turn) < st.still_deg:
+                continue
+            n = int(ob.cells.shape[0])
+            changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
+                                  oa.src.class_name, (float(oa.centroid[0]), float(oa.centroid[1])),
+                                  (float(new_c[0]), float(new_c[1])), disp, turn))
+            mask[added & zone] = 1
+            mask[removed & zone] = 2
+        for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
+            for i in idx:
+                o = objs[i]
+                zone = _dilate(_cell_mask(o, spec), near)
+                n = int(o.cells.shape[0])
+                changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
+                                      o.src.class_name))
+                if kind == "object_appeared":
+                    mask[added & zone] = 1
+                else:
+                    mask[removed & zone] = 2
+        # cells flagged movable, in an object or not, are never static changes
+        on_objects = _dilate(on_objects | (lo.semi_a & lo.occ_a) | (lo.semi_b & lo.occ_b), near)
+
+    # static changes: what is left, in connected pieces
+    min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
+    for kind, cells, value in (("static_added", added & ~on_objects, 1), ("static_removed", removed & ~on_objects, 2)):
+        found, kept = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
+        changes += found
+        mask[kept] = value
+
+    # floor only one session observed
+    min_explored = max(1, int(math.ceil(st.min_explored_m2 / (res * res))))
+    obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
+    for kind, cells in (("newly_explored", obs_b & ~obs_a), ("no_longer_covered", obs_a & ~obs_b)):
+        # thin slivers along the edge of the other map's view are not areas: open them away first
+        opened = cv2.morphologyEx(cells.astype(np.uint8), cv2.MORPH_OPEN, _disk(3.0)) > 0
+        found, _ = _component_changes(opened, spec, kind, 1.0, min_explored)
+        changes += found
+    order = {t: i for i, t in enumerate(CHANGE_TYPES)}
+    changes.sort(key=lambda c: (order[c.type], -c.area_m2))
+    return changes, mask, left_out

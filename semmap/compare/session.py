@@ -1,0 +1,91 @@
+"""One side of a diff: a map folder from ``semmap build``, or a plain map_server map from any tool.
+
+A :class:`Session` holds what the comparison needs, in the map's own grid (row 0 = lowest y):
+the occupancy as map_server loads it, and, for map folders, the semantic layers (cells flagged
+movable, cells where people were seen) and the object list. A map from slam_toolbox, Cartographer
+or any other tool (``map.yaml`` + image) has only the occupancy: the diff is geometric, and says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import ConfigError, MapFolderError, SemmapError
+from ..grid import SemiStaticObject
+from ..io.mapserver import read_map
+from ..records import GridSpec, Mobility
+
+__all__ = ["Session", "open_session"]
+
+
+@dataclass(frozen=True)
+class Session:
+    """A map to compare (grid order, every mask (H, W) bool)."""
+
+    path: Path
+    spec: GridSpec
+    occupied: NDArray[np.bool_]
+    free: NDArray[np.bool_]
+    #: occupied cells flagged movable (all False for a plain map)
+    semi_static: NDArray[np.bool_]
+    #: cells where people were seen: dynamic hits, or cells cleaning dropped as dynamic
+    dynamic: NDArray[np.bool_]
+    objects: tuple[SemiStaticObject, ...]
+    #: True for a semmap map folder; False for a plain map_server map (geometry only)
+    semantic: bool
+    #: the map's yaw in its YAML (map_server's third ``origin`` value); 0 for semmap's maps
+    yaw: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return self.path.name if self.path.name not in ("map.yaml", "") else self.path.parent.name
+
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        return self.occupied | self.free
+
+    @property
+    def static(self) -> NDArray[np.bool_]:
+        """Obstacles that are structure: occupied, not movable."""
+        return self.occupied & ~self.semi_static
+
+
+def open_session(path: str | Path) -> Session:
+    """Open a map folder (a folder with ``summary.json``), a folder holding a ``map.yaml``, or a
+    map_server ``*.yaml`` file. Errors are one line naming the path."""
+    from ..mapfolder.reader import load_map_folder
+
+    p = Path(path)
+    if p.is_dir() and (p / "summary.json").is_file():
+        m = load_map_folder(p)
+        layers = m.layers
+        # people: cells cleaning dropped as dynamic, and cells a good share of whose labelled hits were
+        # people (a person cleaning left in); a stray person label on a chair leg is not enough
+        mob = layers.mobility
+        dyn_hits = mob[Mobility.DYNAMIC].astype(np.float32)
+        labelled = mob[Mobility.STATIC:].sum(axis=0, dtype=np.float32)
+        dynamic = np.asarray(m.cleaned.dynamic_removed, bool) | ((dyn_hits > 0) & (dyn_hits >= 0.3 * labelled))
+        return Session(p, m.spec, np.asarray(m.occupied, bool), np.asarray(m.free, bool),
+                       np.asarray(m.semi_static, bool), dynamic, m.objects, True)
+    if p.is_dir():
+        if not (p / "map.yaml").is_file():
+            raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")
+        p = p / "map.yaml"
+    if not p.is_file():
+        raise MapFolderError(f"{p}: no such map folder or map YAML")
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        raise MapFolderError(f"{p}: not a map_server YAML (expected a .yaml file or a map folder)")
+    try:
+        img = read_map(p)
+    except SemmapError as exc:
+        raise MapFolderError(str(exc)) from None
+    if abs(img.yaw) > 1e-9:
+        raise ConfigError(f"{p}: origin yaw {img.yaw:g} rad: semmap diff does not read maps with a rotated "
+                          "origin yet (slam_toolbox, Cartographer and map_saver write yaw 0)")
+    none = np.zeros(img.spec.shape, bool)
+    return Session(p, img.spec, np.asarray(img.occupied, bool), np.asarray(img.free, bool), none, none.copy(), (),
+                   False, img.yaw)

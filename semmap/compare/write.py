@@ -1,0 +1,195 @@
+"""The diff folder: ``changes.json``, the change mask, ``overlay.png`` and ``report.md``.
+
+::
+
+    DIFF/
+      changes.json     every change (type, class, centroid, area, displacement), the alignment, counts
+      changes.yaml     the change mask as a map_server map in A's map frame (mode raw: 0 none,
+      changes.png      1 added, 2 removed), with A's resolution and origin
+      overlay.png      A's map, B's changes on it, a legend and a scale bar
+      report.md        the summary, the alignment, the table of changes
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.artist import Artist
+from matplotlib.patches import FancyArrowPatch, Patch
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+from ..io.yamlio import write_yaml
+from .changes import CHANGE_TYPES
+from .result import DiffResult
+
+__all__ = ["TYPE_LABELS", "summary_lines", "write_diff_files"]
+
+#: how people read each change type
+TYPE_LABELS = {
+    "static_added": "new static obstacle",
+    "static_removed": "removed static obstacle",
+    "object_moved": "movable object moved",
+    "object_appeared": "movable object appeared",
+    "object_disappeared": "movable object disappeared",
+    "newly_explored": "area newly explored",
+    "no_longer_covered": "area no longer covered",
+}
+
+_ADDED = (0.10, 0.62, 0.20)
+_REMOVED = (0.85, 0.15, 0.15)
+_EXPLORED = (0.35, 0.60, 0.95)
+_UNCOVERED = (0.95, 0.70, 0.30)
+_MOVED = (0.55, 0.25, 0.75)
+
+
+def summary_lines(r: DiffResult) -> list[str]:
+    """The terminal summary: what was compared, how well it aligned, the changes by type."""
+    al = r.alignment.as_dict()
+    t = al["T_a_b"]
+    lines = [f"{r.b.name} against {r.a.name}: " + ("semantic diff" if r.semantic else
+                                                  "geometric diff only (a plain map_server map has no "
+                                                  "semantic layers: no object changes)"),
+             f"  alignment  B in A: x {t[0]:+.3f} m, y {t[1]:+.3f} m, yaw {math.degrees(t[2]):+.2f}°; residual "
+             f"{al['residual_m'] * 100:.1f} cm, {al['inlier_fraction'] * 100:.0f} % of B's walls on A's, "
+             f"overlap {al['overlap'] * 100:.0f} %"]
+    counts = r.counts()
+    shown = [f"{n} {TYPE_LABELS[k]}" for k, n in counts.items() if n]
+    lines.append("  changes    " + (", ".join(shown) if shown else "none"))
+    for c in r.changes:
+        if c.type == "object_moved":
+            lines.append(f"    {c.class_name} moved {c.displacement_m:.2f} m"
+                         + (f", turned {c.rotation_deg:+.0f}°" if c.rotation_deg else "")
+                         + f": ({c.from_xy[0]:.2f}, {c.from_xy[1]:.2f}) -> ({c.to_xy[0]:.2f}, {c.to_xy[1]:.2f})"
+                         if c.from_xy and c.to_xy else "")
+    left = r.left_out
+    if left.get("objects_unobserved_in_b") or left.get("objects_unobserved_in_a"):
+        lines.append(f"  unobserved {left.get('objects_unobserved_in_b', 0)} of A's objects not seen by B, "
+                     f"{left.get('objects_unobserved_in_a', 0)} of B's not seen by A (not reported as changes)")
+    return lines
+
+
+def write_diff_files(r: DiffResult, out: Path) -> list[str]:
+    """Write the diff folder's files into ``out`` (an empty folder); return their names."""
+    spec = r.spec
+    (out / "changes.json").write_text(json.dumps(r.as_dict(), indent=2), encoding="utf-8")
+    if not cv2.imwrite(str(out / "changes.png"), np.flipud(r.mask)):
+        raise OSError(0, "cannot write the change mask", str(out / "changes.png"))
+    # a map_server map of the raw values: nav2 and ROS1 map_server load 0/1/2 as they are in mode raw
+    write_yaml(out / "changes.yaml", {
+        "image": "changes.png", "mode": "raw", "resolution": float(spec.resolution),
+        "origin": [float(spec.origin_x), float(spec.origin_y), 0.0], "negate": 0,
+        "occupied_thresh": 0.65, "free_thresh": 0.196,
+    }, "# semmap diff change mask, session A's map frame: 0 no change, 1 added, 2 removed (mode raw)\n")
+    _overlay(r, out / "overlay.png")
+    _report(r, out / "report.md")
+    return ["changes.json", "changes.png", "changes.yaml", "overlay.png", "report.md"]
+
+
+def _overlay(r: DiffResult, path: Path) -> None:
+    lo = r.laid_out
+    spec = lo.spec
+    seen = lo.occ_a | lo.free_a | lo.occ_b | lo.free_b
+    rows, cols = np.nonzero(seen)
+    if rows.size == 0:
+        rows, cols = np.array([0, spec.height - 1]), np.array([0, spec.width - 1])
+    pad = int(round(1.0 / spec.resolution))
+    r0, r1 = max(0, rows.min() - pad), min(spec.height, rows.max() + pad + 1)
+    c0, c1 = max(0, cols.min() - pad), min(spec.width, cols.max() + pad + 1)
+    win = (slice(r0, r1), slice(c0, c1))
+    img = np.full((r1 - r0, c1 - c0, 3), 0.80)
+    img[lo.free_a[win]] = 1.0
+    only_b = (lo.occ_b | lo.free_b)[win] & ~(lo.occ_a | lo.free_a)[win]
+    only_a = (lo.occ_a | lo.free_a)[win] & ~(lo.occ_b | lo.free_b)[win]
+    img[only_b] = 0.55 * np.array(_EXPLORED) + 0.45
+    img[only_a & lo.free_a[win]] = 0.55 * np.array(_UNCOVERED) + 0.45
+    img[lo.occ_b[win] & ~lo.occ_a[win]] = 0.62  # B's obstacles, faint, where A had none
+    img[lo.occ_a[win]] = 0.25
+    mask = r.mask_common[win]
+    img[mask == 1] = _ADDED
+    img[mask == 2] = _REMOVED
+    extent = (spec.origin_x + c0 * spec.resolution, spec.origin_x + c1 * spec.resolution,
+              spec.origin_y + r0 * spec.resolution, spec.origin_y + r1 * spec.resolution)
+    w_m, h_m = extent[1] - extent[0], extent[3] - extent[2]
+    fig_w = 11.0
+    fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.2, 3.5, 12.0))
+    fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
+    ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
+    for c in r.changes:
+        if c.type == "object_moved" and c.from_xy and c.to_xy:
+            ax.add_patch(FancyArrowPatch(c.from_xy, c.to_xy, arrowstyle="-|>", mutation_scale=12, lw=1.6,
+                                         color=_MOVED))
+            ax.annotate(f"{c.class_name} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, 4),
+                        textcoords="offset points", fontsize=7, color=_MOVED)
+        elif c.type in ("object_appeared", "object_disappeared"):
+            col = _ADDED if c.type == "object_appeared" else _REMOVED
+            ax.plot(*c.centroid, marker="o", ms=14, mfc="none", mec=col, mew=1.5)
+            ax.annotate(f"{c.class_name} {'new' if c.type == 'object_appeared' else 'gone'}", c.centroid,
+                        xytext=(8, -10), textcoords="offset points", fontsize=7, color=col)
+        elif c.type in ("static_added", "static_removed"):
+            col = _ADDED if c.type == "static_added" else _REMOVED
+            ax.plot(*c.centroid, marker="s", ms=12, mfc="none", mec=col, mew=1.2)
+    handles: list[Artist] = [
+        Patch(facecolor="0.25", label="A: obstacle"), Patch(facecolor="1.0", edgecolor="0.6", label="A: free"),
+        Patch(facecolor="0.62", label="B: obstacle A did not have (not a change: A did not see it free)"),
+        Patch(facecolor=_ADDED, label="added in B"), Patch(facecolor=_REMOVED, label="removed in B"),
+        Patch(facecolor=0.55 * np.array(_EXPLORED) + 0.45, label="seen only by B (newly explored)"),
+        Patch(facecolor=0.55 * np.array(_UNCOVERED) + 0.45, label="seen only by A (no longer covered)"),
+    ]
+    if r.semantic:
+        handles += [plt.Line2D([], [], color=_MOVED, marker=">", label="movable object moved"),
+                    plt.Line2D([], [], ls="", marker="o", mfc="none", mec=_ADDED, label="object appeared"),
+                    plt.Line2D([], [], ls="", marker="o", mfc="none", mec=_REMOVED, label="object disappeared")]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    bar = 1.0 if w_m < 15 else 5.0
+    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower right", pad=0.4, frameon=True,
+                                  size_vertical=spec.resolution * 2))
+    counts = r.counts()
+    ax.set_title(f"{r.b.name} against {r.a.name}: " + ", ".join(
+        f"{n} {TYPE_LABELS[k]}" for k, n in counts.items() if n) + ("" if r.semantic else " (geometry only)"),
+        fontsize=9)
+    ax.set_xlabel(f"x [m] ({r.a.name}'s map frame)")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+
+
+def _report(r: DiffResult, path: Path) -> None:
+    al = r.alignment.as_dict()
+    t = al["T_a_b"]
+    lines = [f"# Changes: {r.b.name} against {r.a.name}", "",
+             f"- A: `{r.a.path}`", f"- B: `{r.b.path}`",
+             "- " + ("semantic diff (both are semmap map folders)" if r.semantic else
+                     "**geometric diff only**: at least one map is a plain map_server map, without semantic "
+                     "layers, so furniture changes are static changes and people cannot be told apart"),
+             "", "## Alignment", "",
+             f"B's map frame in A's: x {t[0]:+.3f} m, y {t[1]:+.3f} m, yaw {math.degrees(t[2]):+.2f}°. "
+             f"Residual {al['residual_m'] * 100:.1f} cm over {al['inlier_fraction'] * 100:.0f} % of B's walls; "
+             f"{al['overlap'] * 100:.0f} % of B's observed floor lies on A's; ambiguity {al['ambiguity']:.2f} "
+             "(the best other fit's score over this one's).", "", "![overlay](overlay.png)", "",
+             "## Changes", "", "| type | count |", "|---|---|"]
+    for k, n in r.counts().items():
+        lines.append(f"| {TYPE_LABELS[k]} | {n} |")
+    lines += ["", "| # | type | class | centroid (m, A's map frame) | area (m²) | moved (m) | turned (°) |",
+              "|---|---|---|---|---|---|---|"]
+    order = {t: i for i, t in enumerate(CHANGE_TYPES)}
+    for i, c in enumerate(sorted(r.changes, key=lambda c: order[c.type]), 1):
+        moved = f"{c.displacement_m:.3f}" if c.displacement_m is not None else ""
+        turned = f"{c.rotation_deg:+.1f}" if c.rotation_deg is not None else ""
+        lines.append(f"| {i} | {TYPE_LABELS[c.type]} | {c.class_name or ''} | ({c.centroid[0]:.2f}, "
+                     f"{c.centroid[1]:.2f}) | {c.area_m2:.3f} | {moved} | {turned} |")
+    left = r.left_out
+    lines += ["", "Not reported: cells only one session observed (unobserved, not changed); "
+              f"{left.get('cells_near_people', 0)} cells where people were seen; "
+              f"{left.get('objects_unobserved_in_b', 0)} of A's movable objects B did not see enough of, and "
+              f"{left.get('objects_unobserved_in_a', 0)} of B's that A did not see.", ""]
+    path.write_text("\n".join(lines), encoding="utf-8")

@@ -1,1 +1,0 @@
-"""Comparing map folders across sessions (``semmap diff``): alignment, changes, updated maps."""

@@ -1,0 +1,183 @@
+"""`semmap diff`'s change classification on synthetic sessions whose changes are known exactly.
+
+Each test draws two maps of one room at 5 cm (walls, free floor, furniture legs), gives B's map
+frame a known pose in A's, and checks what the diff reports: the change types, the displacement
+and turn of a moved object, that people and cells only one session saw are never changes, and
+the change mask's cells.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semmap.compare import ChangeSettings, Session
+from semmap.compare.align import Alignment
+from semmap.compare.result import diff_sessions
+from semmap.geometry import se2_apply, se2_inverse
+from semmap.grid import SemiStaticObject
+from semmap.records import GridSpec
+
+RES = 0.05
+
+
+class Room:
+    """A drawing of one session in world coordinates, rendered into a map frame at ``T_world_map``."""
+
+    def __init__(self, size=(10.0, 8.0)):
+        self.w, self.h = size
+        self.walls: list[tuple[float, float, float, float]] = [(0, 0, self.w, 0), (self.w, 0, self.w, self.h),
+                                                              (self.w, self.h, 0, self.h), (0, self.h, 0, 0)]
+        self.objects: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []  # class, c, size, yaw
+        self.people: list[tuple[float, float]] = []
+        self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
+
+    def legs(self, c, size, yaw):
+        """The four legs of a box object, world frame."""
+        half = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * (np.array(size) / 2 - 0.03)
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        return half @ np.array([[cs, sn], [-sn, cs]]) + np.array(c)
+
+    def session(self, T_world_map, name="s") -> Session:
+        """Render into the map frame whose pose in the world is ``T_world_map``."""
+        t_map_world = se2_inverse(T_world_map)
+        corners = se2_apply(t_map_world, np.array([[0, 0], [self.w, 0], [0, self.h], [self.w, self.h]]))
+        spec = GridSpec.covering(*(corners.min(axis=0) - 0.5), *(corners.max(axis=0) + 0.5), RES)
+        occ = np.zeros(spec.shape, bool)
+        semi = np.zeros(spec.shape, bool)
+        dyn = np.zeros(spec.shape, bool)
+
+        def mark(points_world, *layers):
+            rc = spec.world_to_cell(se2_apply(t_map_world, np.asarray(points_world, float).reshape(-1, 2)))
+            ok = (rc[:, 0] >= 0) & (rc[:, 0] < spec.height) & (rc[:, 1] >= 0) & (rc[:, 1] < spec.width)
+            for layer in layers:
+                layer[rc[ok, 0], rc[ok, 1]] = True
+
+        for x0, y0, x1, y1 in self.walls:
+            n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
+            mark(np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1), occ)
+        # the floor: every cell centre inside the room, in the world
+        rows, cols = np.mgrid[0:spec.height, 0:spec.width]
+        centres = np.stack([spec.origin_x + (cols.ravel() + 0.5) * RES, spec.origin_y + (rows.ravel() + 0.5) * RES],
+                           axis=1)
+        world = se2_apply(T_world_map, centres)
+        inside = ((world[:, 0] > 0.03) & (world[:, 0] < self.w - 0.03) & (world[:, 1] > 0.03)
+                  & (world[:, 1] < self.h - 0.03)).reshape(spec.shape)
+        for bx0, by0, bx1, by1 in self.unseen:
+            inside &= ~((world[:, 0] >= bx0) & (world[:, 0] <= bx1) & (world[:, 1] >= by0)
+                        & (world[:, 1] <= by1)).reshape(spec.shape)
+        objs = []
+        for cls, c, size, yaw in self.objects:
+            legs = self.legs(c, size, yaw)
+            for leg in legs:  # a leg: a 4 cm square
+                mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
+            cm = se2_apply(t_map_world, np.array([c]))[0]
+            fp = se2_apply(t_map_world, self.legs(c, (size[0] + 0.06, size[1] + 0.06), yaw))
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (max(size), min(size)),
+                                         float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+        for p in self.people:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
+        free = inside & ~occ
+        return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True)
+
+
+T_A = np.array([1.0, 0.5, 0.0])  # A's map frame in the world
+T_B = np.array([8.5, 6.0, 2.5])  # B started elsewhere, facing elsewhere
+
+
+def _diff(a_room, b_room, settings=None, semantic=True):
+    a, b = a_room.session(T_A, "A"), b_room.session(T_B, "B")
+    if not semantic:
+        b = Session(b.path, b.spec, b.occupied, b.free, np.zeros_like(b.semi_static), np.zeros_like(b.dynamic), (),
+                    False)
+    t_a_b = se2_apply(se2_inverse(T_A), T_B[None, :2])[0]
+    al = Alignment(np.array([t_a_b[0], t_a_b[1], T_B[2] - T_A[2]]))
+    return diff_sessions(a, b, alignment=al, settings=settings)
+
+
+def _world(xy):
+    return se2_apply(T_A, np.asarray(xy, float).reshape(-1, 2))[0]
+
+
+def test_a_moved_and_turned_table_is_one_move_with_its_displacement_and_turn():
+    a, b = Room(), Room()
+    a.objects.append(("dining table", (3.0, 3.0), (1.6, 0.8), 0.0))
+    b.objects.append(("dining table", (4.2, 3.5), (1.6, 0.8), math.radians(30)))
+    r = _diff(a, b)
+    assert r.counts()["object_moved"] == 1 and r.counts()["object_appeared"] == r.counts()["object_disappeared"] == 0
+    assert r.counts()["static_added"] == r.counts()["static_removed"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "dining table"
+    assert np.allclose(_world(mv.from_xy), (3.0, 3.0), atol=0.03)
+    assert np.allclose(_world(mv.to_xy), (4.2, 3.5), atol=0.03)
+    assert mv.displacement_m == pytest.approx(math.hypot(1.2, 0.5), abs=0.03)
+    assert mv.rotation_deg == pytest.approx(30.0, abs=3.0)  # legs on a 5 cm grid: 1.6 m apart, ±2°
+
+
+def test_an_unmoved_object_and_a_person_are_no_change():
+    a, b = Room(), Room()
+    for room in (a, b):
+        room.objects.append(("chair", (6.0, 2.0), (0.5, 0.45), 0.3))
+    b.people.append((5.0, 5.0))  # a person left in B's map, with the dynamic evidence of the grid
+    r = _diff(a, b)
+    assert [c.type for c in r.changes] == []
+    assert r.left_out["cells_near_people"] > 0
+    assert not r.mask.any()
+
+
+def test_cells_only_one_session_saw_are_unobserved_never_changed():
+    a, b = Room(), Room()
+    b.unseen.append((0.0, 0.0, 4.0, 8.0))  # B never went into the west part of the room
+    a.objects.append(("chair", (2.0, 4.0), (0.5, 0.45), 0.0))  # a chair there: B cannot say it is gone
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_disappeared"] == counts["static_removed"] == 0
+    assert r.left_out["objects_unobserved_in_b"] == 1
+    assert counts["no_longer_covered"] == 1 and counts["newly_explored"] == 0
+    gone = r.of_type("no_longer_covered")[0]
+    assert gone.area_m2 == pytest.approx(4.0 * 8.0, rel=0.1)
+    assert not r.mask.any()
+
+
+def test_a_new_wall_is_a_static_change_with_its_cells_in_the_mask():
+    a, b = Room(), Room()
+    b.walls.append((5.0, 0.0, 5.0, 3.0))  # a partition, 3 m
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1 and r.counts()["static_removed"] == 0
+    c = r.of_type("static_added")[0]
+    assert np.allclose(_world(c.centroid), (5.0, 1.5), atol=0.15)
+    # the mask, in A's grid: cells along the new wall, and only there (the first cells by the old wall
+    # are within the tolerance of it)
+    rows, cols = np.nonzero(r.mask == 1)
+    xy = np.stack([r.spec.origin_x + (cols + 0.5) * RES, r.spec.origin_y + (rows + 0.5) * RES], axis=1)
+    w = se2_apply(T_A, xy)
+    assert np.all(np.abs(w[:, 0] - 5.0) < 0.1) and w[:, 1].max() == pytest.approx(3.0, abs=0.1)
+    assert rows.size >= 0.8 * (3.0 - 0.15) / RES
+    assert not (r.mask == 2).any()
+
+
+def test_removed_and_appeared_objects_and_a_geometric_diff():
+    a, b = Room(), Room()
+    a.objects.append(("chair", (2.0, 2.0), (0.5, 0.45), 0.0))
+    b.objects.append(("couch", (7.0, 6.0), (2.0, 0.9), 0.0))
+    r = _diff(a, b)
+    assert r.counts()["object_disappeared"] == 1 and r.counts()["object_appeared"] == 1
+    assert r.of_type("object_disappeared")[0].class_name == "chair"
+    assert r.of_type("object_appeared")[0].class_name == "couch"
+    assert (r.mask == 1).any() and (r.mask == 2).any()
+    # without semantic layers the same change is geometry: obstacles added and removed, and said so
+    g = _diff(a, b, semantic=False)
+    assert not g.semantic and g.counts()["object_appeared"] == 0
+    assert g.counts()["static_added"] >= 1 and g.counts()["static_removed"] >= 1
+
+
+def test_tolerance_decides_what_a_small_shift_is():
+    a, b = Room(), Room()
+    a.walls.append((5.0, 0.0, 5.0, 3.0))
+    b.walls.append((5.08, 0.0, 5.08, 3.0))  # the partition re-measured 8 cm over
+    assert _diff(a, b).counts()["static_added"] == 0  # within the default 10 cm
+    strict = _diff(a, b, ChangeSettings(tolerance_m=0.02)).counts()
+    assert strict["static_added"] == 1 and strict["static_removed"] == 1

@@ -50,6 +50,11 @@ _UNCOVERED = (0.95, 0.70, 0.30)
 _MOVED = (0.55, 0.25, 0.75)
 
 
+def _tint(c: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A light shade of ``c`` for areas."""
+    return (0.55 * c[0] + 0.45, 0.55 * c[1] + 0.45, 0.55 * c[2] + 0.45)
+
+
 def summary_lines(r: DiffResult) -> list[str]:
     """The terminal summary: what was compared, how well it aligned, the changes by type."""
     al = r.alignment.as_dict()
@@ -108,8 +113,8 @@ def _overlay(r: DiffResult, path: Path) -> None:
     img[lo.free_a[win]] = 1.0
     only_b = (lo.occ_b | lo.free_b)[win] & ~(lo.occ_a | lo.free_a)[win]
     only_a = (lo.occ_a | lo.free_a)[win] & ~(lo.occ_b | lo.free_b)[win]
-    img[only_b] = 0.55 * np.array(_EXPLORED) + 0.45
-    img[only_a & lo.free_a[win]] = 0.55 * np.array(_UNCOVERED) + 0.45
+    img[only_b] = _tint(_EXPLORED)
+    img[only_a & lo.free_a[win]] = _tint(_UNCOVERED)
     img[lo.occ_b[win] & ~lo.occ_a[win]] = 0.62  # B's obstacles, faint, where A had none
     img[lo.occ_a[win]] = 0.25
     mask = r.mask_common[win]
@@ -140,8 +145,8 @@ def _overlay(r: DiffResult, path: Path) -> None:
         Patch(facecolor="0.25", label="A: obstacle"), Patch(facecolor="1.0", edgecolor="0.6", label="A: free"),
         Patch(facecolor="0.62", label="B: obstacle A did not have (not a change: A did not see it free)"),
         Patch(facecolor=_ADDED, label="added in B"), Patch(facecolor=_REMOVED, label="removed in B"),
-        Patch(facecolor=0.55 * np.array(_EXPLORED) + 0.45, label="seen only by B (newly explored)"),
-        Patch(facecolor=0.55 * np.array(_UNCOVERED) + 0.45, label="seen only by A (no longer covered)"),
+        Patch(facecolor=_tint(_EXPLORED), label="seen only by B (newly explored)"),
+        Patch(facecolor=_tint(_UNCOVERED), label="seen only by A (no longer covered)"),
     ]
     if r.semantic:
         handles += [plt.Line2D([], [], color=_MOVED, marker=">", label="movable object moved"),

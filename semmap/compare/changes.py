@@ -336,9 +336,17 @@ def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
 
 
 def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
-    m = np.zeros(spec.shape, bool)
-    m[o.cells[:, 0], o.cells[:, 1]] = True
-    return m
+    """The floor the object takes: the convex hull of its cells (a bed's four legs and what is
+    between them), and its footprint when it has one."""
+    m = np.zeros(spec.shape, np.uint8)
+    if o.cells.shape[0]:
+        hull = cv2.convexHull(o.cells[:, ::-1].astype(np.int32))  # (col, row) points
+        cv2.fillConvexPoly(m, hull, 1)
+        m[o.cells[:, 0], o.cells[:, 1]] = 1
+    if o.footprint.shape[0] >= 3:
+        pts = np.round(((o.footprint - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16)
+        cv2.fillPoly(m, [pts.astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    return m > 0
 
 
 def _elongated(o: _Obj) -> bool:
@@ -428,8 +436,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     res = spec.resolution
     tol = st.tolerance_m / res
     people = _dilate(lo.dyn_a | lo.dyn_b, st.people_margin_m / res)
-    added = lo.occ_b & lo.free_a & ~_dilate(lo.occ_a, tol) & ~people
-    removed = lo.occ_a & lo.free_b & ~_dilate(lo.occ_b, tol) & ~people
+    # a leg of furniture the session flagged movable is not a person, even where people stood beside it
+    semi_a, semi_b = lo.semi_a & lo.occ_a, lo.semi_b & lo.occ_b
+    # furniture is matched at a finer tolerance than walls: a chair's legs 10 cm from a wall are
+    # not the wall (the alignment is good to a cell)
+    fine = min(tol, 1.0)
+    near_a = np.where(semi_b, _dilate(lo.occ_a, fine), _dilate(lo.occ_a, tol))
+    near_b = np.where(semi_a, _dilate(lo.occ_b, fine), _dilate(lo.occ_b, tol))
+    added = lo.occ_b & lo.free_a & ~near_a & ~(people & ~semi_b)
+    removed = lo.occ_a & lo.free_b & ~near_b & ~(people & ~semi_a)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0}

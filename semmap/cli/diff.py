@@ -24,7 +24,9 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
     p.add_argument("b", type=Path, metavar="SESSION_B", help="the later session")
     p.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="diff folder to write: changes.json, changes.png/.yaml (mask), overlay.png, report.md")
-    p.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--update", type=Path, metavar="MAP_DIR",
+                   help="also write A's map folder with B's changes applied (A's frame and grid, loadable by nav2)")
+    p.add_argument("--force", action="store_true", help="replace DIR (and MAP_DIR) if they exist")
     p.add_argument("--tolerance", type=float, default=None, metavar="M",
                    help="obstacles closer than this are the same obstacle (default 0.10 m)")
     p.set_defaults(run=run)
@@ -40,11 +42,13 @@ def run(args: argparse.Namespace) -> int:
         if not args.tolerance >= 0:
             raise ConfigError(f"--tolerance must be 0 or more metres, got {args.tolerance}")
         st = ChangeSettings(tolerance_m=args.tolerance)
-    result = diff(args.a, args.b, out=args.out, force=args.force, settings=st)
+    result = diff(args.a, args.b, out=args.out, update=args.update, force=args.force, settings=st)
     if not args.quiet:
         out = console()
         for line in summary_lines(result):
             out.print(line)
         out.print(f"  wrote      {args.out}/ (overlay.png, changes.json, changes.yaml, report.md) in "
                   f"{result.seconds:.1f} s")
+        if args.update is not None:
+            out.print(f"  updated    {args.update}/: {args.a}'s map with these changes applied")
     return 0

@@ -14,22 +14,39 @@ from .changes import CHANGE_TYPES, Change, ChangeSettings
 from .result import DiffResult, diff_sessions
 from .session import Session, open_session
 
-__all__ = ["CHANGE_TYPES", "Change", "ChangeSettings", "DiffResult", "Session", "diff", "open_session", "write_diff"]
+__all__ = ["CHANGE_TYPES", "Change", "ChangeSettings", "DiffResult", "Session", "diff", "open_session", "write_diff",
+           "write_update"]
 
 
-def diff(a: str | Path | Session, b: str | Path | Session, *, out: str | Path | None = None, force: bool = False,
-         settings: ChangeSettings | None = None) -> DiffResult:
+def diff(a: str | Path | Session, b: str | Path | Session, *, out: str | Path | None = None,
+         update: str | Path | None = None, force: bool = False, settings: ChangeSettings | None = None) -> DiffResult:
     """Compare session ``b`` with session ``a`` (map folders written by ``semmap build``, or any
-    map_server maps); with ``out``, also write the diff folder there."""
-    if out is not None:
-        from ..io.atomic import check_output
+    map_server maps). With ``out``, also write the diff folder there; with ``update``, also write
+    A's map folder with B's changes applied (:mod:`semmap.compare.update`)."""
+    from ..io.atomic import check_output
 
-        check_output(out, force, marker="changes.json", inputs=[Path(str(a)), Path(str(b))] if not (
-            isinstance(a, Session) or isinstance(b, Session)) else [], what="diff folder")
+    inputs = [p.path if isinstance(p, Session) else Path(p) for p in (a, b)]
+    if out is not None:  # refuse a bad output before any work
+        check_output(out, force, marker="changes.json", inputs=inputs, what="diff folder")
+    if update is not None:
+        check_output(update, force, marker="summary.json", inputs=inputs, what="map folder")
     result = diff_sessions(a, b, settings=settings)
+    if update is not None:
+        write_update(result, update, force)
     if out is not None:
         write_diff(result, out, force)
     return result
+
+
+def write_update(result: DiffResult, out: str | Path, force: bool = False) -> Path:
+    """Write A's map folder with ``result``'s changes applied at ``out``, whole or not at all."""
+    from ..io.atomic import atomic_dir
+    from .update import write_updated_map
+
+    with atomic_dir(out, force, marker="summary.json", inputs=[result.a.path, result.b.path],
+                    what="map folder") as tmp:
+        write_updated_map(result, tmp)
+    return Path(out)
 
 
 def write_diff(result: DiffResult, out: str | Path, force: bool = False) -> Path:

@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""Score `semmap diff` on simulated session pairs against their truth, and time it on a big map.
+
+Each pair is a base scenario (session A) and a changed one (session B: the same building a while
+later, furniture moved, turned, removed or added, a new wall or shelf, a door closed, other
+people, and a tour that starts elsewhere facing elsewhere). Both tours are simulated and built
+with `semmap build`, B's map is diffed against A's with `semmap diff`'s own alignment, and
+`semmap.sim.score_diff` scores it (see there): alignment error, F1 of added and removed cells at a
+2-cell tolerance, moved objects matched and their displacement error, and changes reported where
+nothing changed.
+
+The random pairs' seeds are the scoring seeds (1000 and up), never used while developing (that
+used 100-199). Tours and maps are kept in ``--work`` and reused when present.
+
+    python tools/bench_diff.py                               # named + 4 random pairs, ~20 min
+    python tools/bench_diff.py --pairs ward random:1001      # some pairs
+    python tools/bench_diff.py --big-only                    # the 100 m x 100 m timing only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tools"))
+from benchlib import machine
+
+NAMED = {"ward": ("ward", "ward_b"), "office": ("office", "office_b")}
+SCORING_SEEDS = (1001, 1002, 1003, 1004)
+
+
+def _pair_names(pair: str) -> tuple[str, str]:
+    if pair in NAMED:
+        return NAMED[pair]
+    if pair.startswith("random:"):
+        return pair, f"{pair}:b"
+    raise SystemExit(f"unknown pair {pair!r}: ward, office or random:SEED")
+
+
+def _tour_and_map(scenario: str, work: Path, quiet: bool) -> tuple[Path, Path]:
+    import semmap
+
+    key = scenario.replace(":", "_")
+    tour, mapdir = work / "tours" / key, work / "maps" / key
+    if not (tour / "tour.yaml").is_file():
+        if not quiet:
+            print(f"  simulating {scenario}", flush=True)
+        semmap.simulate(scenario, tour, seed=0)
+    if not (mapdir / "summary.json").is_file():
+        if not quiet:
+            print(f"  building {scenario}", flush=True)
+        semmap.build(tour, mapdir, force=True)
+    return tour, mapdir
+
+
+def score_pair(pair: str, work: Path, quiet: bool = False) -> dict:
+    from semmap.compare import diff
+    from semmap.sim.score_diff import score_diff
+
+    a_name, b_name = _pair_names(pair)
+    tour_a, map_a = _tour_and_map(a_name, work, quiet)
+    tour_b, map_b = _tour_and_map(b_name, work, quiet)
+    out = work / "diffs" / pair.replace(":", "_")
+    result = diff(map_a, map_b, out=out, force=True)
+    s = score_diff(tour_a, map_a, tour_b, map_b, result)
+    s["pair"] = pair
+    s["alignment"] = result.alignment.as_dict()
+    s["diff_folder"] = str(out)
+    return s
+
+
+def big_maps(size_m: float = 100.0, res: float = 0.05, seed: int = 7) -> tuple[float, dict]:
+    """Two synthetic 100 m x 100 m floors at 5 cm (a grid of rooms with doors, furniture legs), the
+    second turned and shifted with some changes; the time of one full diff (alignment included)."""
+    import tempfile
+
+    import cv2
+
+    from semmap.compare import diff
+    from semmap.io.mapserver import write_map
+    from semmap.records import GridSpec
+
+    rng = np.random.default_rng(seed)
+    n = int(size_m / res)
+    occ = np.zeros((n, n), np.uint8)
+    room = int(8.0 / res)
+    for k in range(0, n + 1, room):  # walls every 8 m, with a door in each
+        k = min(k, n - 2)
+        cv2.line(occ, (0, k), (n - 1, k), 1, 2)
+        cv2.line(occ, (k, 0), (k, n - 1), 1, 2)
+    for k in range(0, n - room, room):
+        for j in range(0, n - room, room):
+            d = j + int(rng.uniform(1.5, 6.5) / res)
+            occ[k:k + 3, d:d + int(0.9 / res)] = 0  # a door in the wall below the room
+            d = k + int(rng.uniform(1.5, 6.5) / res)
+            occ[d:d + int(0.9 / res), j:j + 3] = 0
+            for _ in range(rng.integers(2, 6)):  # furniture: legs of a box
+                cx, cy = j + rng.integers(20, room - 20), k + rng.integers(20, room - 20)
+                for dx in (-8, 8):
+                    for dy in (-6, 6):
+                        occ[cy + dy, cx + dx] = 1
+    free = occ == 0
+    spec = GridSpec(res, 0.0, 0.0, n, n)
+    # B: the same floor with a few rooms refurnished, turned 37° and shifted (by warping the raster)
+    occ_b = occ.copy()
+    for _ in range(40):
+        cx, cy = rng.integers(50, n - 50, size=2)
+        occ_b[cy - 6:cy + 7:12, cx - 8:cx + 9:16] = 1
+    yaw, tx, ty = math.radians(37.0), 12.3, -7.9
+    m = cv2.getRotationMatrix2D((n / 2, n / 2), math.degrees(yaw), 1.0)
+    m[:, 2] += (tx / res, ty / res)
+    occ_b = cv2.warpAffine(occ_b, m, (n, n), flags=cv2.INTER_NEAREST, borderValue=0)
+    known_b = cv2.warpAffine(np.ones((n, n), np.uint8), m, (n, n), flags=cv2.INTER_NEAREST, borderValue=0) > 0
+    with tempfile.TemporaryDirectory() as d:
+        write_map(Path(d) / "a.yaml", spec, occ > 0, known=np.ones_like(free))
+        write_map(Path(d) / "b.yaml", spec, occ_b > 0, known=known_b)
+        t0 = time.perf_counter()
+        r = diff(Path(d) / "a.yaml", Path(d) / "b.yaml")
+        seconds = time.perf_counter() - t0
+    # the truth: where the warp put A's cell centres in B, as an SE(2) fit B -> A
+    from semmap.geometry import se2_apply
+    from semmap.register.metrics import align_se2
+
+    cells_a = rng.uniform(0, n, size=(200, 2))  # (col, row)
+    cells_b = cells_a @ m[:, :2].T + m[:, 2]
+    true_t = align_se2((cells_b + 0.5) * res, (cells_a + 0.5) * res)
+    pts = (cells_b + 0.5) * res
+    err = np.linalg.norm(se2_apply(r.alignment.T_a_b, pts) - se2_apply(true_t, pts), axis=1)
+    return seconds, {"cells": n * n, "alignment": r.alignment.as_dict(), "counts": r.counts(),
+                     "alignment_error_m": float(np.sqrt(np.mean(err ** 2))),
+                     "alignment_error_deg": abs(math.degrees(math.remainder(r.alignment.T_a_b[2] - true_t[2],
+                                                                            2 * math.pi)))}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pairs", nargs="+", default=["ward", "office", *[f"random:{s}" for s in SCORING_SEEDS]])
+    ap.add_argument("--work", type=Path, default=Path("/tmp/semmap-bench-diff"))
+    ap.add_argument("--big-only", action="store_true", help="only the 100 m x 100 m timing")
+    ap.add_argument("--json", type=Path, help="also write the results here")
+    args = ap.parse_args()
+    print(f"*{time.strftime('%Y-%m-%d')}, {machine()}*\n")
+    results = []
+    if not args.big_only:
+        for pair in args.pairs:
+            print(f"{pair}:", flush=True)
+            results.append(score_pair(pair, args.work))
+        print("\n| pair | alignment error (cm, °) | F1 added+removed (P / R) | moved objects matched | "
+              "worst displacement error (cm) | false changes | changes found | diff time (s) |")
+        print("|---|---|---|---|---|---|---|---|")
+        for s in results:
+            moves = list(s["moves"])
+            matched = sum(m["matched"] for m in moves)
+            errs = [m["displacement_error_m"] for m in moves if m["displacement_error_m"] is not None]
+            worst = f"{max(errs) * 100:.1f}" if errs else "-"
+            counts = ", ".join(f"{n} {k}" for k, n in s["counts"].items() if n)
+            print(f"| {s['pair']} | {s['alignment_error_m'] * 100:.1f}, {s['alignment_error_deg']:.2f} | "
+                  f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched} of {len(moves)} | {worst} | "
+                  f"{len(s['false_changes'])} | {counts} | {s['seconds']:.2f} |")
+        for s in results:
+            for f in s["false_changes"]:
+                print(f"  false change in {s['pair']}: {f}")
+            for m in s["moves"]:
+                if not m["matched"]:
+                    print(f"  move not found in {s['pair']}: {m}")
+    seconds, big = big_maps()
+    print(f"\nTwo 100 m x 100 m maps at 5 cm ({big['cells'] / 1e6:.0f} M cells each), B turned 37° and shifted: "
+          f"diff in {seconds:.2f} s (alignment {big['alignment']['seconds']:.2f} s); alignment error "
+          f"{big['alignment_error_m'] * 100:.1f} cm, {big['alignment_error_deg']:.2f}°")
+    if args.json:
+        args.json.write_text(json.dumps({"pairs": results, "big": {"seconds": seconds, **big}}, indent=2,
+                                        default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

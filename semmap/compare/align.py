@@ -1,34 +1,312 @@
-# TEMPORARY placeholder until the diff-align branch lands (not to be committed)
+"""Global SE(2) alignment of two occupancy maps, with no initial guess.
+
+Two tours of one building start wherever the robot stood, so their map frames differ by an
+unknown rotation and translation. This finds the pose of B's map frame in A's from the static
+structure of both, as correlative scan matching does it (Olson, "Real-time correlative scan
+matching", ICRA 2009; Cartographer's branch-and-bound search rests on the same scores):
+
+1. **Every heading, coarse.** A's obstacles become a likelihood field (a Gaussian of the
+   distance to the nearest obstacle) on a coarse grid (20 cm, coarser for big maps). For each
+   heading in 2° steps, B's obstacle points, turned, are rasterised and cross-correlated with the
+   field by FFT: every translation is scored at once.
+2. **The best few, finer.** The best distinct peaks (more than 6° or 1.5 m apart) are searched
+   again in a small window on a field at twice the map's resolution.
+3. **Full resolution.** A robust ICP (point to point, the inlier distance shrinking from 30 cm to
+   1.5 cells) takes each to convergence; moved furniture and new walls fall outside the inlier
+   distance and pull nothing.
+4. **Which one, and how sure.** Each refined candidate is scored by the share of B's wall points
+   (those that land in A's observed area) within 1.5 cells of A's walls. The best wins;
+   ``ambiguity`` is the best distinct other candidate's score over the winner's (1.0: a tie, as
+   in a bare rectangular room turned half way round).
+
+Too little overlap, too few inliers or too ambiguous a fit raise
+:class:`~semmap.errors.AlignmentError` with what was measured against what threshold.
+"""
+
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import fftconvolve
+from scipy.spatial import cKDTree
 
+from ..errors import AlignmentError
+from ..geometry import se2_apply, wrap_angle
 from ..records import GridSpec
+from .session import Session
+
+__all__ = ["AlignInput", "Alignment", "align_maps"]
 
 
 @dataclass(frozen=True)
 class AlignInput:
+    """One map to align: its grid, the obstacles to align on, and the cells observed free."""
+
     spec: GridSpec
+    #: (H, W) obstacles to align on: static structure when the map has semantic layers
     occupied: NDArray[np.bool_]
+    #: (H, W) cells observed free (for the overlap)
     free: NDArray[np.bool_]
+    #: (H, W) other obstacles (furniture): they choose between fits the structure alone cannot tell
+    #: apart (a ward of identical rooms along a corridor looks the same turned half way round)
+    movable: NDArray[np.bool_] | None = None
+
+    @classmethod
+    def from_session(cls, s: Session) -> AlignInput:
+        """Structure only: movable objects and people are what changes, not what to align on; the
+        furniture still helps choose between fits."""
+        return cls(spec=s.spec, occupied=s.occupied & ~s.semi_static & ~s.dynamic, free=s.free,
+                   movable=s.occupied & s.semi_static & ~s.dynamic)
+
+    def points(self, with_movable: bool = False) -> NDArray[np.float64]:
+        """Obstacle cell centres (N, 2), the map's frame (and the movable ones, if asked)."""
+        cells = self.occupied | self.movable if with_movable and self.movable is not None else self.occupied
+        rows, cols = np.nonzero(cells)
+        s = self.spec
+        return np.stack([s.origin_x + (cols + 0.5) * s.resolution, s.origin_y + (rows + 0.5) * s.resolution],
+                        axis=1).astype(np.float64)
+
 
 @dataclass(frozen=True)
 class Alignment:
+    """The pose of B's map frame in A's: ``p_a = se2_apply(T_a_b, p_b)``, and how good it is."""
+
     T_a_b: NDArray[np.float64]
+    #: RMS distance (m) from B's inlier wall points to A's nearest wall point
     residual_m: float = 0.0
+    #: share of B's wall points (in A's observed area) within 1.5 cells of A's walls
     inlier_fraction: float = 1.0
+    #: share of B's observed cells that land on A's observed cells
     overlap: float = 1.0
+    #: where the best and the best distinct other fit disagree, the other's evidence over the best's (1.0: a tie)
     ambiguity: float = 0.0
     seconds: float = 0.0
-    def as_dict(self) -> dict[str, Any]:
-        t = self.T_a_b
-        return {"T_a_b": [float(t[0]), float(t[1]), float(t[2])], "yaw_deg": float(np.degrees(t[2])),
-                "residual_m": self.residual_m, "inlier_fraction": self.inlier_fraction, "overlap": self.overlap,
-                "ambiguity": self.ambiguity, "seconds": self.seconds}
 
-def align_maps(a: AlignInput, b: AlignInput, **kw: Any) -> Alignment:
-    raise NotImplementedError
+    def as_dict(self) -> dict[str, Any]:
+        t = np.asarray(self.T_a_b, np.float64)
+        return {"T_a_b": [round(float(t[0]), 4), round(float(t[1]), 4), round(float(t[2]), 6)],
+                "yaw_deg": round(math.degrees(float(t[2])), 3), "residual_m": round(self.residual_m, 4),
+                "inlier_fraction": round(self.inlier_fraction, 4), "overlap": round(self.overlap, 4),
+                "ambiguity": round(self.ambiguity, 4), "seconds": round(self.seconds, 3)}
+
+
+def _field(points: NDArray[np.float64], origin: NDArray[np.float64], res: float, shape: tuple[int, int]
+           ) -> NDArray[np.float32]:
+    """A likelihood field on a grid: exp(-d² / 2) with d the distance to the nearest point in cells."""
+    img = np.ones(shape, np.uint8)
+    ij = np.floor((points - origin) / res).astype(np.int64)
+    ok = (ij[:, 0] >= 0) & (ij[:, 0] < shape[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < shape[0])
+    img[ij[ok, 1], ij[ok, 0]] = 0
+    d = cv2.distanceTransform(img, cv2.DIST_L2, 5)
+    return np.exp(-0.5 * d.astype(np.float32) ** 2)
+
+
+def _lookup(field: NDArray[np.float32], origin: NDArray[np.float64], res: float,
+            points: NDArray[np.float64]) -> NDArray[np.float32]:
+    ij = np.floor((points - origin) / res).astype(np.int64)
+    h, w = field.shape
+    ok = (ij[..., 0] >= 0) & (ij[..., 0] < w) & (ij[..., 1] >= 0) & (ij[..., 1] < h)
+    out = np.zeros(ij.shape[:-1], np.float32)
+    out[ok] = field[ij[..., 1][ok], ij[..., 0][ok]]
+    return out
+
+
+def _rot(theta: float) -> NDArray[np.float64]:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def _coarse(pa: NDArray[np.float64], pb: NDArray[np.float64], res: float, step_deg: float
+            ) -> list[tuple[float, float, NDArray[np.float64]]]:
+    """(score, heading, translation) of the best translation for every heading: B's points, turned
+    about their centroid by the heading and then shifted, land on A's field."""
+    lo = pa.min(axis=0) - 3 * res
+    hi = pa.max(axis=0) + 3 * res
+    shape = (int(math.ceil((hi[1] - lo[1]) / res)) + 1, int(math.ceil((hi[0] - lo[0]) / res)) + 1)
+    field = _field(pa, lo, res, shape)
+    cb = pb.mean(axis=0)
+    centred = pb - cb
+    out = []
+    for deg in np.arange(-180.0, 180.0, step_deg):
+        th = math.radians(float(deg))
+        q = centred @ _rot(th).T
+        qmin = q.min(axis=0)
+        ij = np.floor((q - qmin) / res).astype(np.int64)
+        img = np.zeros((int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1), np.float32)
+        np.add.at(img, (ij[:, 1], ij[:, 0]), 1.0)
+        # full correlation: index j <-> shift j - (hb - 1) of B's raster against A's field
+        corr = fftconvolve(field, img[::-1, ::-1], mode="full")
+        k = int(np.argmax(corr))
+        r, c = divmod(k, corr.shape[1])
+        shift = np.array([c - (img.shape[1] - 1), r - (img.shape[0] - 1)], np.float64)
+        # B's raster cell u holds q in [qmin + u res, ...); it lands on A's cell u + shift
+        t = lo + shift * res - qmin
+        out.append((float(corr[r, c]), th, t - _rot(th) @ cb))
+    return out
+
+
+def _distinct(cands: list[tuple[float, float, NDArray[np.float64]]], k: int, deg: float, dist: float
+              ) -> list[tuple[float, float, NDArray[np.float64]]]:
+    keep: list[tuple[float, float, NDArray[np.float64]]] = []
+    for c in sorted(cands, key=lambda c: -c[0]):
+        if all(abs(math.degrees(float(wrap_angle(c[1] - o[1])))) > deg or np.linalg.norm(c[2] - o[2]) > dist
+               for o in keep):
+            keep.append(c)
+            if len(keep) == k:
+                break
+    return keep
+
+
+def _refine_window(pose: NDArray[np.float64], pb: NDArray[np.float64], field: NDArray[np.float32],
+                   origin: NDArray[np.float64], res: float, half_deg: float, half_m: float
+                   ) -> NDArray[np.float64]:
+    """Brute force around ``pose`` on a fine field: headings in 0.5° steps, shifts in field cells."""
+    best, best_s = pose, -1.0
+    steps = np.arange(-half_m, half_m + 1e-9, res)
+    dx, dy = np.meshgrid(steps, steps)
+    offs = np.stack([dx.ravel(), dy.ravel()], axis=1)
+    for d in np.arange(-half_deg, half_deg + 1e-9, 0.5):
+        th = float(pose[2]) + math.radians(float(d))
+        q = pb @ _rot(th).T + pose[:2]
+        s = _lookup(field, origin, res, q[None, :, :] + offs[:, None, :]).sum(axis=1)
+        k = int(np.argmax(s))
+        if s[k] > best_s:
+            best_s = float(s[k])
+            best = np.array([pose[0] + offs[k, 0], pose[1] + offs[k, 1], th])
+    return best
+
+
+def _icp(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, pa: NDArray[np.float64],
+         res: float) -> NDArray[np.float64]:
+    """Trimmed point-to-point ICP, the inlier distance shrinking to 1.5 cells."""
+    for max_d in (0.3, 0.15, 3.0 * res, 1.5 * res):
+        for _ in range(15):
+            q = se2_apply(pose, pb)
+            d, j = tree.query(q, distance_upper_bound=max_d)
+            ok = np.isfinite(d)
+            if ok.sum() < 10:
+                return pose
+            p, r = pb[ok], pa[j[ok]]
+            pc, rc = p.mean(axis=0), r.mean(axis=0)
+            h = (p - pc).T @ (r - rc)
+            th = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+            t = rc - _rot(th) @ pc
+            new = np.array([t[0], t[1], th])
+            done = np.linalg.norm(new[:2] - pose[:2]) < 1e-4 and abs(float(wrap_angle(new[2] - pose[2]))) < 1e-5
+            pose = new
+            if done:
+                break
+    return pose
+
+
+def _observed_mask(m: AlignInput) -> NDArray[np.bool_]:
+    return np.asarray(m.occupied | m.free, bool)
+
+
+def _inside(spec: GridSpec, mask: NDArray[np.bool_], pts: NDArray[np.float64]) -> NDArray[np.bool_]:
+    rc = spec.world_to_cell(pts)
+    ok = (rc[:, 0] >= 0) & (rc[:, 0] < spec.height) & (rc[:, 1] >= 0) & (rc[:, 1] < spec.width)
+    out = np.zeros(len(pts), bool)
+    out[ok] = mask[rc[ok, 0], rc[ok, 1]]
+    return out
+
+
+def _inliers(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a: AlignInput,
+             seen_a: NDArray[np.bool_], tol: float) -> NDArray[np.bool_]:
+    """B's points that land within ``tol`` of A's points, in A's observed area, under ``pose``."""
+    q = se2_apply(pose, pb)
+    d, _ = tree.query(q, distance_upper_bound=tol)
+    return np.isfinite(d) & _inside(a.spec, seen_a, q)
+
+
+def _score(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a: AlignInput,
+           seen_a: NDArray[np.bool_], tol: float) -> tuple[float, float, float]:
+    """(inlier fraction, inlier count, RMS residual of inliers) of B's points under ``pose``."""
+    q = se2_apply(pose, pb)
+    # B's walls that land where A observed (or within a cell of A's walls) can be checked
+    checkable = _inside(a.spec, seen_a, q)
+    d, _ = tree.query(q)
+    inl = (d <= tol) & checkable
+    n = int(checkable.sum())
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else math.inf
+    return (float(inl.sum()) / n if n else 0.0), float(inl.sum()), rms
+
+
+def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_inliers: float = 0.4,
+               max_ambiguity: float = 0.75, max_points: int = 4000, seed: int = 0) -> Alignment:
+    """The pose of B's map frame in A's (see the module's description); raises
+    :class:`~semmap.errors.AlignmentError` when the maps cannot be aligned with confidence."""
+    t0 = time.perf_counter()
+    pa, pb_all = a.points(), b.points()
+    if len(pa) < 20 or len(pb_all) < 20:
+        which = "A" if len(pa) < 20 else "B"
+        raise AlignmentError(f"map {which} has {min(len(pa), len(pb_all))} wall cells: too few to align on")
+    res = min(a.spec.resolution, b.spec.resolution)
+    rng = np.random.default_rng(seed)
+    pb = pb_all if len(pb_all) <= max_points else pb_all[rng.choice(len(pb_all), max_points, replace=False)]
+    extent = float(max(np.ptp(pa, axis=0).max(), np.ptp(pb, axis=0).max()))
+    coarse_res = max(0.2, extent / 350.0)
+    # 1. every heading, coarse
+    cands = _coarse(pa, pb, coarse_res, step_deg=2.0)
+    top = _distinct(cands, 6, deg=6.0, dist=1.5)
+    # 2. finer, in a window; 3. ICP at full resolution
+    fine_res = 2.0 * res
+    lo = pa.min(axis=0) - 1.0
+    hi = pa.max(axis=0) + 1.0
+    fshape = (int(math.ceil((hi[1] - lo[1]) / fine_res)) + 1, int(math.ceil((hi[0] - lo[0]) / fine_res)) + 1)
+    ffield = _field(pa, lo, fine_res, fshape)
+    tree = cKDTree(pa)
+    seen_a = _observed_mask(a) | (cv2.dilate(a.occupied.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    sub = pb[:: max(1, len(pb) // 1500)]
+    refined = []
+    for _, th, t in top:
+        pose = np.array([t[0], t[1], th])
+        pose = _refine_window(pose, sub, ffield, lo, fine_res, half_deg=2.5, half_m=1.5 * coarse_res)
+        pose = _icp(pose, pb, tree, pa, res)
+        frac, count, rms = _score(pose, pb, tree, a, seen_a, 1.5 * res)
+        refined.append((count, pose, frac, rms))
+    # which candidate: structure and furniture together, and only the points on which two fits
+    # disagree count (a ward of identical rooms matches its walls turned half way round as well as
+    # straight; the few things that differ decide)
+    pa_all, pb_every = a.points(with_movable=True), b.points(with_movable=True)
+    tree_all = cKDTree(pa_all)
+    pb_choice = pb_every[:: max(1, len(pb_every) // 8000)]
+    inliers = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for _, pose, _, _ in refined]
+    order = sorted(range(len(refined)), key=lambda i: -int(inliers[i].sum()))
+    best_i = order[0]
+    best = refined[best_i][1]
+    ambiguity = 0.0
+    for i in order[1:]:
+        pose = refined[i][1]
+        same_turn = abs(math.degrees(float(wrap_angle(pose[2] - best[2])))) <= 3.0
+        if same_turn and np.linalg.norm(pose[:2] - best[:2]) <= 0.3:
+            continue  # the same fit, found twice
+        only_best = int((inliers[best_i] & ~inliers[i]).sum())
+        only_other = int((inliers[i] & ~inliers[best_i]).sum())
+        # the evidence for the other fit over the evidence for the best (+10 points: no evidence is a tie)
+        ambiguity = max(ambiguity, (only_other + 10) / (only_best + 10))
+    # final score on every wall point of B
+    frac, _, rms = _score(best, pb_all, tree, a, seen_a, 1.5 * res)
+    obs_b = np.argwhere(_observed_mask(b))[:: max(1, int(_observed_mask(b).sum()) // 20000)]
+    pts_b = np.stack([b.spec.origin_x + (obs_b[:, 1] + 0.5) * b.spec.resolution,
+                      b.spec.origin_y + (obs_b[:, 0] + 0.5) * b.spec.resolution], axis=1)
+    overlap = float(_inside(a.spec, _observed_mask(a), se2_apply(best, pts_b)).mean()) if len(pts_b) else 0.0
+    best = np.array([best[0], best[1], float(wrap_angle(best[2]))])
+    result = Alignment(best, rms if math.isfinite(rms) else 0.0, frac, overlap, ambiguity, time.perf_counter() - t0)
+    if overlap < min_overlap:
+        raise AlignmentError(f"the maps overlap too little to align: {overlap:.0%} of B's observed floor lands on "
+                             f"A's at the best fit (at least {min_overlap:.0%} needed)")
+    if frac < min_inliers:
+        raise AlignmentError(f"the maps do not match: at the best fit only {frac:.0%} of B's walls lie on A's "
+                             f"(at least {min_inliers:.0%} needed); are they of the same building?")
+    if ambiguity > max_ambiguity:
+        raise AlignmentError(f"the alignment is ambiguous: where two fits disagree, the evidence for another is "
+                             f"{ambiguity:.0%} of the best's (at most {max_ambiguity:.0%} allowed): a symmetric "
+                             f"room or a featureless corridor")
+    return result

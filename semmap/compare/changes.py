@@ -461,8 +461,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a)
         objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b)
         obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
-        gone = _changed_objects(objs_a, removed, obs_b, people, st, left_out, "objects_unobserved_in_b")
-        new = _changed_objects(objs_b, added, obs_a, people, st, left_out, "objects_unobserved_in_a")
+        # an object's own cells are furniture by its session's labels: only cells people were seen on
+        # (not the margin around them) are no evidence
+        seen_people = lo.dyn_a | lo.dyn_b
+        gone = _changed_objects(objs_a, removed, obs_b, seen_people, st, left_out, "objects_unobserved_in_b")
+        new = _changed_objects(objs_b, added, obs_a, seen_people, st, left_out, "objects_unobserved_in_a")
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True

@@ -79,7 +79,7 @@ def diff_sessions(a: str | Path | Session, b: str | Path | Session, *, settings:
     sb = b if isinstance(b, Session) else open_session(b)
     st = settings or ChangeSettings()
     if alignment is None:
-        alignment = align_maps(_align_input(sa), _align_input(sb))
+        alignment = align_maps(AlignInput.from_session(sa), AlignInput.from_session(sb))
     t = np.asarray(alignment.T_a_b, np.float64)
     lo = lay_out(sa, sb, t)
     changes, mask_common, left_out = classify_changes(sa, sb, lo, t, st)
@@ -87,8 +87,3 @@ def diff_sessions(a: str | Path | Session, b: str | Path | Session, *, settings:
     mask = np.ascontiguousarray(mask_common[r0:r0 + h, c0:c0 + w])
     return DiffResult(sa, sb, alignment, lo, tuple(changes), mask, mask_common, sa.semantic and sb.semantic,
                       left_out, st, time.perf_counter() - t0)
-
-
-def _align_input(s: Session) -> AlignInput:
-    # structure only: movable objects and people are what changes, not what to align on
-    return AlignInput(spec=s.spec, occupied=s.occupied & ~s.semi_static & ~s.dynamic, free=s.free)

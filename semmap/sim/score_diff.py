@@ -112,11 +112,15 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
     reported = [c for c in result.changes if c.type == "object_moved"]
     rep_from = [se2_apply(ta, np.array([c.from_xy]))[0] for c in reported if c.from_xy]
     moves = []
+    hits_a, hits_b = _lidar_hits(tour_a), _lidar_hits(tour_b)
     for t in changes_t:
         if t.get("type") != "moved" or t.get("mobility", "semi_static") != "semi_static":
             continue
-        src = np.asarray(t["from"][:2], float)
-        seen = bool(seen_a[tuple(spec_t.world_to_cell(src[None])[0])]) if _inside(spec_t, src) else False
+        if hits_a.get(int(t["id"]), 1) <= 0 or hits_b.get(int(t["id"]), 1) <= 0:
+            continue  # a LiDAR session never hit it (a monitor above the scan plane): no map can see it move
+        src, dst = np.asarray(t["from"][:2], float), np.asarray(t["to"][:2], float)
+        # a move can be seen when B observed where the object was and A observed where it went
+        seen = _share_near(seen_b, spec_t, src) >= 0.5 and _share_near(seen_a, spec_t, dst) >= 0.5
         best, best_d = None, math.inf
         for k, c in enumerate(reported):
             if c.class_name != t.get("class"):
@@ -162,6 +166,23 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
         "moves": moves, "false_changes": false, "seconds": result.seconds,
         "counts": result.counts(),
     }
+
+
+def _lidar_hits(tour: str | Path) -> dict[int, int]:
+    """True LiDAR hits per object id in a tour (``ground_truth/objects.json``); empty when absent."""
+    p = Path(tour) / "ground_truth" / "objects.json"
+    if not p.is_file():
+        return {}
+    data = json.loads(p.read_text(encoding="utf-8"))
+    return {int(o["id"]): int(o.get("lidar_hits", 0)) for o in data.get("objects", [])}
+
+
+def _share_near(mask: NDArray[np.bool_], spec: GridSpec, xy: NDArray[np.float64], radius: float = 0.3) -> float:
+    """Share of the cells within ``radius`` of ``xy`` that ``mask`` holds."""
+    r, c = spec.world_to_cell(xy[None])[0]
+    k = int(math.ceil(radius / spec.resolution))
+    win = mask[max(0, r - k):r + k + 1, max(0, c - k):c + k + 1]
+    return float(win.mean()) if win.size else 0.0
 
 
 def _inside(spec: GridSpec, xy: NDArray[np.float64]) -> bool:

@@ -1,0 +1,82 @@
+"""Synthetic floor plans drawn into occupancy maps at 5 cm, for `semmap diff`'s tests.
+
+A :class:`Room` (or any plan of walls) is drawn in world coordinates and rendered into a map frame
+whose pose in the world is known, as a session of ``semmap diff``: walls, furniture legs flagged
+movable with their object list, people with dynamic evidence, floor observed free.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from semmap.compare import Session
+from semmap.geometry import se2_apply, se2_inverse
+from semmap.grid import SemiStaticObject
+from semmap.records import GridSpec
+
+RES = 0.05
+
+
+class Room:
+    """A drawing of one session in world coordinates, rendered into a map frame at ``T_world_map``."""
+
+    def __init__(self, size=(10.0, 8.0)):
+        self.w, self.h = size
+        self.walls: list[tuple[float, float, float, float]] = [(0, 0, self.w, 0), (self.w, 0, self.w, self.h),
+                                                              (self.w, self.h, 0, self.h), (0, self.h, 0, 0)]
+        self.objects: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []  # class, c, size, yaw
+        self.people: list[tuple[float, float]] = []
+        self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
+
+    def legs(self, c, size, yaw):
+        """The four legs of a box object, world frame."""
+        half = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * (np.array(size) / 2 - 0.03)
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        return half @ np.array([[cs, sn], [-sn, cs]]) + np.array(c)
+
+    def session(self, T_world_map, name="s") -> Session:
+        """Render into the map frame whose pose in the world is ``T_world_map``."""
+        t_map_world = se2_inverse(T_world_map)
+        corners = se2_apply(t_map_world, np.array([[0, 0], [self.w, 0], [0, self.h], [self.w, self.h]]))
+        spec = GridSpec.covering(*(corners.min(axis=0) - 0.5), *(corners.max(axis=0) + 0.5), RES)
+        occ = np.zeros(spec.shape, bool)
+        semi = np.zeros(spec.shape, bool)
+        dyn = np.zeros(spec.shape, bool)
+
+        def mark(points_world, *layers):
+            rc = spec.world_to_cell(se2_apply(t_map_world, np.asarray(points_world, float).reshape(-1, 2)))
+            ok = (rc[:, 0] >= 0) & (rc[:, 0] < spec.height) & (rc[:, 1] >= 0) & (rc[:, 1] < spec.width)
+            for layer in layers:
+                layer[rc[ok, 0], rc[ok, 1]] = True
+
+        for x0, y0, x1, y1 in self.walls:
+            n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
+            mark(np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1), occ)
+        # the floor: every cell centre inside the room, in the world
+        rows, cols = np.mgrid[0:spec.height, 0:spec.width]
+        centres = np.stack([spec.origin_x + (cols.ravel() + 0.5) * RES, spec.origin_y + (rows.ravel() + 0.5) * RES],
+                           axis=1)
+        world = se2_apply(T_world_map, centres)
+        inside = ((world[:, 0] > 0.03) & (world[:, 0] < self.w - 0.03) & (world[:, 1] > 0.03)
+                  & (world[:, 1] < self.h - 0.03)).reshape(spec.shape)
+        for bx0, by0, bx1, by1 in self.unseen:
+            inside &= ~((world[:, 0] >= bx0) & (world[:, 0] <= bx1) & (world[:, 1] >= by0)
+                        & (world[:, 1] <= by1)).reshape(spec.shape)
+        objs = []
+        for cls, c, size, yaw in self.objects:
+            legs = self.legs(c, size, yaw)
+            for leg in legs:  # a leg: a 4 cm square
+                mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
+            cm = se2_apply(t_map_world, np.array([c]))[0]
+            fp = se2_apply(t_map_world, self.legs(c, (size[0] + 0.06, size[1] + 0.06), yaw))
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (max(size), min(size)),
+                                         float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+        for p in self.people:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
+        free = inside & ~occ
+        return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True)
+
+

@@ -1,0 +1,80 @@
+"""`semmap diff`'s alignment: B's map frame found in A's with no initial guess, on synthetic floor
+plans at 5 cm whose true transform is known, despite the changes between the sessions; and maps
+that cannot be aligned refused with one clear line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from diff_plans import RES, Room
+
+from semmap.compare.align import AlignInput, align_maps
+from semmap.errors import AlignmentError
+from semmap.geometry import se2_apply, se2_compose, se2_inverse, wrap_angle
+
+
+def _plan() -> Room:
+    """Three rooms off a hall, 16 m x 10 m, with doors; no two halves alike."""
+    p = Room((16.0, 10.0))
+    p.walls += [(6.0, 0.0, 6.0, 2.0), (6.0, 3.0, 6.0, 10.0),  # a door at y 2-3
+                (11.0, 0.0, 11.0, 6.0), (11.0, 7.2, 11.0, 10.0),  # a door at y 6-7.2
+                (11.0, 5.0, 13.0, 5.0), (14.0, 5.0, 16.0, 5.0),  # a door at x 13-14
+                (0.0, 6.5, 2.5, 6.5)]  # a stub
+    p.objects += [("bed", (3.0, 8.0), (2.0, 0.9), 0.0), ("chair", (8.5, 2.0), (0.5, 0.45), 0.4),
+                  ("dining table", (13.5, 8.0), (1.6, 0.8), 0.0), ("couch", (13.5, 2.0), (2.0, 0.9), math.pi / 2)]
+    return p
+
+
+def _error(est, T_world_a, T_world_b, session_b):
+    """RMS distance (m) between where the estimate and the truth put B's walls, and the yaw error (°)."""
+    true = se2_compose(se2_inverse(T_world_a), T_world_b)
+    rows, cols = np.nonzero(session_b.occupied)
+    s = session_b.spec
+    pts = np.stack([s.origin_x + (cols + 0.5) * RES, s.origin_y + (rows + 0.5) * RES], axis=1)
+    gap = np.linalg.norm(se2_apply(est, pts) - se2_apply(true, pts), axis=1)
+    return float(np.sqrt(np.mean(gap ** 2))), abs(math.degrees(float(wrap_angle(est[2] - true[2]))))
+
+
+@pytest.mark.parametrize("T_world_b", [(9.0, 7.5, 2.6), (-3.0, 12.0, -1.9), (14.2, 0.7, math.pi)])
+def test_b_started_anywhere_facing_anywhere_is_found_within_a_cell_and_half_a_degree(T_world_b):
+    a_plan, b_plan = _plan(), _plan()
+    # the changes between the sessions: the table moved and turned, a new partition, a person,
+    # a room B never entered, a chair gone
+    b_plan.objects = [o for o in b_plan.objects if o[0] != "chair"]
+    b_plan.objects[1] = ("dining table", (12.8, 8.5), (1.6, 0.8), 0.6)
+    b_plan.walls.append((2.0, 3.0, 4.5, 3.0))
+    b_plan.people.append((8.0, 6.0))
+    b_plan.unseen.append((11.0, 0.0, 16.0, 5.0))
+    T_world_a = np.array([1.0, 0.5, 0.3])
+    a, b = a_plan.session(T_world_a, "A"), b_plan.session(np.asarray(T_world_b), "B")
+    al = align_maps(AlignInput.from_session(a), AlignInput.from_session(b))
+    dist, yaw = _error(al.T_a_b, T_world_a, np.asarray(T_world_b), b)
+    assert dist <= RES and yaw <= 0.5
+    assert al.inlier_fraction > 0.8 and al.overlap > 0.8 and al.ambiguity < 0.75
+    assert al.residual_m < RES
+
+
+def test_maps_of_different_buildings_are_refused():
+    a = _plan().session(np.zeros(3), "A")
+    other = Room((30.0, 2.5))  # a long corridor
+    other.walls += [(10.0, 0.0, 10.0, 1.0), (20.0, 1.5, 20.0, 2.5)]
+    b = other.session(np.array([0.0, 0.0, 0.7]), "B")
+    with pytest.raises(AlignmentError, match=r"overlap too little|do not match|ambiguous"):
+        align_maps(AlignInput.from_session(a), AlignInput.from_session(b))
+
+
+def test_a_bare_rectangular_room_is_ambiguous_not_silently_wrong():
+    a = Room((8.0, 5.0)).session(np.zeros(3), "A")
+    b = Room((8.0, 5.0)).session(np.array([3.0, 1.0, 0.4]), "B")
+    with pytest.raises(AlignmentError, match=r"ambiguous: .* symmetric room"):
+        align_maps(AlignInput.from_session(a), AlignInput.from_session(b))
+
+
+def test_an_empty_map_is_refused_with_one_line():
+    a = _plan().session(np.zeros(3), "A")
+    b = _plan().session(np.zeros(3), "B")
+    empty = AlignInput(b.spec, np.zeros(b.spec.shape, bool), b.free)
+    with pytest.raises(AlignmentError, match=r"map B has 0 wall cells: too few to align on"):
+        align_maps(AlignInput.from_session(a), empty)

@@ -327,7 +327,14 @@ SCENARIOS: dict[str, Callable[[], Scenario]] = {
 
 
 def get_scenario(name: str) -> Scenario:
-    """A built-in scenario by name, or ``random:SEED`` for a procedural world."""
+    """A built-in scenario by name, ``random:SEED`` for a procedural world, or ``NAME:b`` / ``NAME:bK``
+    for a second session of another (:mod:`semmap.sim.sessions`)."""
+    from .sessions import parse_session_name  # imports this module
+
+    if parse_session_name(name) is not None:
+        from .sessions import get_session
+
+        return get_session(name)
     if name.startswith("random:"):
         from .procedural import random_world, scenario_seed  # imports this module
 
@@ -339,5 +346,6 @@ def get_scenario(name: str) -> Scenario:
     factory = SCENARIOS.get(name)
     if factory is None:
         known = ", ".join(SCENARIOS)
-        raise ConfigError(f"unknown scenario {name!r} (built in: {known}, random:SEED; or give a world .yaml file)")
+        raise ConfigError(f"unknown scenario {name!r} (built in: {known}, random:SEED, NAME:b for a second "
+                          f"session; or give a world .yaml file)")
     return factory()

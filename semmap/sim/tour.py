@@ -558,10 +558,14 @@ def _change_list(before: World, after: World) -> list[dict[str, Any]]:
             pb = np.concatenate([p.polygon for p in b[oid].parts])
             if pa.shape != pb.shape or not np.allclose(pa, pb):
                 ca, cb = o.centroid(), b[oid].centroid()
-                out.append({"type": "moved", "id": oid, "name": o.name, "class": o.cls,
-                            "mobility": o.mobility.label, "from": [round(float(v), 3) for v in ca],
-                            "to": [round(float(v), 3) for v in cb],
-                            "displacement_m": round(float(np.linalg.norm(cb - ca)), 3)})
+                entry = {"type": "moved", "id": oid, "name": o.name, "class": o.cls,
+                         "mobility": o.mobility.label, "from": [round(float(v), 3) for v in ca],
+                         "to": [round(float(v), 3) for v in cb],
+                         "displacement_m": round(float(np.linalg.norm(cb - ca)), 3)}
+                if pa.shape == pb.shape:  # the turn, from the parts' vertices (2D Kabsch)
+                    h = (pa - pa.mean(axis=0)).T @ (pb - pb.mean(axis=0))
+                    entry["rotation_deg"] = round(math.degrees(math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])), 2)
+                out.append(entry)
     for oid, o in b.items():
         if oid not in a:
             out.append({"type": "added", "id": oid, "name": o.name, "class": o.cls,

@@ -443,8 +443,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     fine = min(tol, 1.0)
     near_a = np.where(semi_b, _dilate(lo.occ_a, fine), _dilate(lo.occ_a, tol))
     near_b = np.where(semi_a, _dilate(lo.occ_b, fine), _dilate(lo.occ_b, tol))
-    added = lo.occ_b & lo.free_a & ~near_a & ~(people & ~semi_b)
-    removed = lo.occ_a & lo.free_b & ~near_b & ~(people & ~semi_a)
+    # an obstacle is doubted where its own session saw people: a person B's cleaning left in is not an
+    # obstacle added, but a cabinet B found where people stood in A is
+    people_a = _dilate(lo.dyn_a, st.people_margin_m / res)
+    people_b = _dilate(lo.dyn_b, st.people_margin_m / res)
+    added = lo.occ_b & lo.free_a & ~near_a & ~(people_b & ~semi_b)
+    removed = lo.occ_a & lo.free_b & ~near_b & ~(people_a & ~semi_a)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0}

@@ -281,6 +281,14 @@ def session_b(base: Scenario, seed: int, name: str | None = None) -> Scenario:
     except SimulationError as exc:
         raise SimulationError(f"{world_b.name}: the changed world blocks the route ({exc})") from None
     clear = floor.clearance(statics + kept)
+    # people whose walks now cross moved or new furniture stay home
+    walkers = []
+    for person in world_b.people:
+        period = max(person.period_s, 1.0)
+        pts = [person.state(float(t))[:2] for t in np.arange(0.0, period, 0.25)]
+        if min(clear((x, y)) for x, y in pts) >= 0.3:
+            walkers.append(person)
+    world_b = replace(world_b, people=tuple(walkers))
     for _ in range(_TRIES):
         at = floor.free_spot(rng)
         if at is None:

@@ -37,3 +37,19 @@ def short_tour(request, tmp_path_factory, short_demo_world):
 
     out = tmp_path_factory.mktemp(f"tour_{request.param}") / "demo"
     return simulate(short_demo_world, out, fmt=request.param, seed=3)
+
+
+@pytest.fixture(scope="session")
+def demo_tour(tmp_path_factory):
+    """The full 28 s demo tour (a standing person, a walking one, furniture)."""
+    from semmap.sim.tour import simulate
+
+    return simulate("demo", tmp_path_factory.mktemp("tour") / "demo", seed=0)
+
+
+@pytest.fixture(scope="session")
+def demo_map(demo_tour, tmp_path_factory):
+    """The demo tour's map folder, built with the default configuration (read it, do not change it)."""
+    from semmap.pipeline import build
+
+    return build(demo_tour.out, tmp_path_factory.mktemp("maps") / "demo")

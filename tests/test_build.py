@@ -22,17 +22,6 @@ MAP_FILES = {"map.yaml", "map.pgm", "semantic.png", "semi_static.yaml", "semi_st
              "summary.json", "report.md", "report/trajectory.png", "report/classes.png"}
 
 
-@pytest.fixture(scope="module")
-def demo_tour(tmp_path_factory):
-    """The full 28 s demo tour (a standing person, a walking one, furniture)."""
-    return simulate("demo", tmp_path_factory.mktemp("tour") / "demo", seed=0)
-
-
-@pytest.fixture(scope="module")
-def demo_map(demo_tour, tmp_path_factory):
-    return build(demo_tour.out, tmp_path_factory.mktemp("maps") / "demo")
-
-
 def test_map_folder_has_every_file_and_loads_like_map_server(demo_map):
     files = {p.relative_to(demo_map.out).as_posix() for p in demo_map.out.rglob("*") if p.is_file()}
     assert files >= MAP_FILES

@@ -96,15 +96,15 @@ class Alignment:
                 "ambiguity": round(self.ambiguity, 4), "seconds": round(self.seconds, 3)}
 
 
-def _field(points: NDArray[np.float64], origin: NDArray[np.float64], res: float, shape: tuple[int, int]
-           ) -> NDArray[np.float32]:
-    """A likelihood field on a grid: exp(-d² / 2) with d the distance to the nearest point in cells."""
+def _field(points: NDArray[np.float64], origin: NDArray[np.float64], res: float, shape: tuple[int, int],
+           sigma_cells: float = 1.0) -> NDArray[np.float32]:
+    """A likelihood field on a grid: exp(-d² / 2σ²) with d the distance to the nearest point, in cells."""
     img = np.ones(shape, np.uint8)
     ij = np.floor((points - origin) / res).astype(np.int64)
     ok = (ij[:, 0] >= 0) & (ij[:, 0] < shape[1]) & (ij[:, 1] >= 0) & (ij[:, 1] < shape[0])
     img[ij[ok, 1], ij[ok, 0]] = 0
     d = cv2.distanceTransform(img, cv2.DIST_L2, 5)
-    return np.exp(-0.5 * d.astype(np.float32) ** 2)
+    return np.exp(-0.5 * (d.astype(np.float32) / sigma_cells) ** 2)
 
 
 def _lookup(field: NDArray[np.float32], origin: NDArray[np.float64], res: float,
@@ -205,6 +205,33 @@ def _icp(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, pa: 
     return pose
 
 
+def _polish(pose: NDArray[np.float64], pb: NDArray[np.float64], field: NDArray[np.float32],
+            origin: NDArray[np.float64], res: float) -> NDArray[np.float64]:
+    """The last step, off the cell lattice: the pose near ``pose`` whose points score best on a smooth
+    likelihood field of A's walls (σ one cell, read between cells by bilinear interpolation). ICP
+    between cell centres locks onto whole cells and lets a few points of furniture by a wall pull
+    the fit by a cell; a smooth field does neither."""
+    from scipy.ndimage import map_coordinates
+
+    def score(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.empty(len(poses))
+        for k, (x, y, th) in enumerate(poses):
+            q = pb @ _rot(float(th)).T + (x, y)
+            ij = (q - origin) / res - 0.5
+            out[k] = map_coordinates(field, [ij[:, 1], ij[:, 0]], order=1, mode="constant", cval=0.0).sum()
+        return out
+
+    step_xy, step_th = 0.5 * res, math.radians(0.1)
+    for _ in range(3):
+        dx = np.arange(-2, 3) * step_xy
+        dth = np.arange(-2, 3) * step_th
+        gx, gy, gt = np.meshgrid(dx, dx, dth, indexing="ij")
+        poses = pose + np.stack([gx.ravel(), gy.ravel(), gt.ravel()], axis=1)
+        pose = poses[int(np.argmax(score(poses)))]
+        step_xy, step_th = step_xy / 2.0, step_th / 2.0
+    return pose
+
+
 def _observed_mask(m: AlignInput) -> NDArray[np.bool_]:
     return np.asarray(m.occupied | m.free, bool)
 
@@ -218,11 +245,14 @@ def _inside(spec: GridSpec, mask: NDArray[np.bool_], pts: NDArray[np.float64]) -
 
 
 def _inliers(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a: AlignInput,
-             seen_a: NDArray[np.bool_], tol: float) -> NDArray[np.bool_]:
-    """B's points that land within ``tol`` of A's points, in A's observed area, under ``pose``."""
+             seen_a: NDArray[np.bool_], tol: float) -> tuple[NDArray[np.bool_], float]:
+    """B's points that land within ``tol`` of A's points, in A's observed area, under ``pose``; and
+    their soft count (each weighted by exp(-d² / 2σ²), σ half a cell)."""
     q = se2_apply(pose, pb)
     d, _ = tree.query(q, distance_upper_bound=tol)
-    return np.isfinite(d) & _inside(a.spec, seen_a, q)
+    ok = np.isfinite(d) & _inside(a.spec, seen_a, q)
+    sigma = 0.5 * a.spec.resolution
+    return ok, float(np.exp(-0.5 * (d[ok] / sigma) ** 2).sum())
 
 
 def _score(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a: AlignInput,
@@ -257,7 +287,7 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     top = _distinct(cands, 6, deg=6.0, dist=1.5)
     # 2. finer, in a window; 3. ICP at full resolution
     fine_res = 2.0 * res
-    lo = pa.min(axis=0) - 1.0
+    lo = pa.min(axis=0) - 1.0 - 0.5 * res  # A's cell centres at the centres of the fields' cells
     hi = pa.max(axis=0) + 1.0
     fshape = (int(math.ceil((hi[1] - lo[1]) / fine_res)) + 1, int(math.ceil((hi[0] - lo[0]) / fine_res)) + 1)
     ffield = _field(pa, lo, fine_res, fshape)
@@ -277,20 +307,37 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     pa_all, pb_every = a.points(with_movable=True), b.points(with_movable=True)
     tree_all = cKDTree(pa_all)
     pb_choice = pb_every[:: max(1, len(pb_every) // 8000)]
-    inliers = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for _, pose, _, _ in refined]
-    order = sorted(range(len(refined)), key=lambda i: -int(inliers[i].sum()))
-    best_i = order[0]
+    fits = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for _, pose, _, _ in refined]
+    inliers = [f[0] for f in fits]
+    # the fits, grouped (within 3° and 30 cm they are one fit found twice): a group's strength is its
+    # members' best inlier count; its pose the member with the best soft count (a point half a cell
+    # off counts 0.6, a cell off 0.14), so that of two poses keeping every point within the
+    # tolerance the closer one wins
+    def same(p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
+        return abs(math.degrees(float(wrap_angle(p[2] - q[2])))) <= 3.0 and float(np.linalg.norm(p[:2] - q[:2])) <= 0.3
+
+    groups: list[list[int]] = []
+    for i in range(len(refined)):
+        for g in groups:
+            if same(refined[i][1], refined[g[0]][1]):
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    groups.sort(key=lambda g: -max(int(inliers[i].sum()) for i in g))
+    reps = [max(g, key=lambda i: fits[i][1]) for g in groups]
+    best_i = reps[0]
     best = refined[best_i][1]
     ambiguity = 0.0
-    for i in order[1:]:
-        pose = refined[i][1]
-        same_turn = abs(math.degrees(float(wrap_angle(pose[2] - best[2])))) <= 3.0
-        if same_turn and np.linalg.norm(pose[:2] - best[:2]) <= 0.3:
-            continue  # the same fit, found twice
+    for i in reps[1:]:
         only_best = int((inliers[best_i] & ~inliers[i]).sum())
         only_other = int((inliers[i] & ~inliers[best_i]).sum())
         # the evidence for the other fit over the evidence for the best (+10 points: no evidence is a tie)
         ambiguity = max(ambiguity, (only_other + 10) / (only_best + 10))
+    # off the cell lattice, on a smooth field of A's walls
+    full = _field(pa, lo, res, (int(math.ceil((hi[1] - lo[1]) / res)) + 1, int(math.ceil((hi[0] - lo[0]) / res)) + 1),
+                  sigma_cells=1.0)
+    best = _polish(best, pb, full, lo, res)
     # final score on every wall point of B
     frac, _, rms = _score(best, pb_all, tree, a, seen_a, 1.5 * res)
     obs_b = np.argwhere(_observed_mask(b))[:: max(1, int(_observed_mask(b).sum()) // 20000)]

@@ -118,8 +118,12 @@ def _overlay(r: DiffResult, path: Path) -> None:
     img[lo.occ_b[win] & ~lo.occ_a[win]] = 0.62  # B's obstacles, faint, where A had none
     img[lo.occ_a[win]] = 0.25
     mask = r.mask_common[win]
-    img[mask == 1] = _ADDED
-    img[mask == 2] = _REMOVED
+    # changed cells grown for the eye (a chair leg is one cell of a map hundreds of cells wide); the
+    # change mask itself is not grown
+    grow = max(1, int(round(0.004 * max(mask.shape))))
+    kernel = np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)
+    img[cv2.dilate((mask == 2).astype(np.uint8), kernel) > 0] = _REMOVED
+    img[cv2.dilate((mask == 1).astype(np.uint8), kernel) > 0] = _ADDED
     extent = (spec.origin_x + c0 * spec.resolution, spec.origin_x + c1 * spec.resolution,
               spec.origin_y + r0 * spec.resolution, spec.origin_y + r1 * spec.resolution)
     w_m, h_m = extent[1] - extent[0], extent[3] - extent[2]
@@ -127,23 +131,24 @@ def _overlay(r: DiffResult, path: Path) -> None:
     fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.2, 3.5, 12.0))
     fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
     ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
-    for c in r.changes:
+    for k, c in enumerate(r.changes):
+        dy = 4 - 11 * (k % 3)  # neighbouring labels at different heights
         if c.type == "object_moved" and c.from_xy and c.to_xy:
             ax.add_patch(FancyArrowPatch(c.from_xy, c.to_xy, arrowstyle="-|>", mutation_scale=12, lw=1.6,
                                          color=_MOVED))
-            ax.annotate(f"{c.class_name} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, 4),
+            ax.annotate(f"{c.class_name} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, dy),
                         textcoords="offset points", fontsize=7, color=_MOVED)
         elif c.type in ("object_appeared", "object_disappeared"):
             col = _ADDED if c.type == "object_appeared" else _REMOVED
             ax.plot(*c.centroid, marker="o", ms=14, mfc="none", mec=col, mew=1.5)
             ax.annotate(f"{c.class_name} {'new' if c.type == 'object_appeared' else 'gone'}", c.centroid,
-                        xytext=(8, -10), textcoords="offset points", fontsize=7, color=col)
+                        xytext=(8, dy - 6), textcoords="offset points", fontsize=7, color=col)
         elif c.type in ("static_added", "static_removed"):
             col = _ADDED if c.type == "static_added" else _REMOVED
             ax.plot(*c.centroid, marker="s", ms=12, mfc="none", mec=col, mew=1.2)
     handles: list[Artist] = [
         Patch(facecolor="0.25", label="A: obstacle"), Patch(facecolor="1.0", edgecolor="0.6", label="A: free"),
-        Patch(facecolor="0.62", label="B: obstacle A did not have (not a change: A did not see it free)"),
+        Patch(facecolor="0.62", label="B: obstacle where A saw nothing (unobserved, not a change)"),
         Patch(facecolor=_ADDED, label="added in B"), Patch(facecolor=_REMOVED, label="removed in B"),
         Patch(facecolor=_tint(_EXPLORED), label="seen only by B (newly explored)"),
         Patch(facecolor=_tint(_UNCOVERED), label="seen only by A (no longer covered)"),

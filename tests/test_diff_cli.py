@@ -1,0 +1,110 @@
+"""`semmap diff` from the command line on real map folders: the diff folder, the change mask as
+nav2's map_server loads it (mode raw), the updated map, a plain map_server map, and bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+import semmap
+from semmap.cli.main import main
+from semmap.errors import AlignmentError, MapFolderError
+from semmap.io.mapserver import read_map
+
+
+def nav2_raw(yaml_path):
+    """A mode-raw map as nav2's map_io loads it: shade = grey / 255, value = round(shade * 255) when
+    0 <= value <= 100 else -1 (unknown); image row 0 is the grid's top row."""
+    meta = yaml.safe_load(yaml_path.read_text())
+    assert meta["mode"] == "raw"
+    img = cv2.imread(str(yaml_path.parent / meta["image"]), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    value = np.round(img / 255.0 * 255.0)
+    grid = np.where((value >= 0) & (value <= 100), value, -1).astype(np.int8)
+    return meta, np.flipud(grid)
+
+
+@pytest.fixture(scope="module")
+def changed(demo_map, tmp_path_factory):
+    """The demo map as a plain map_server map with a new 60 cm x 40 cm obstacle on free floor."""
+    d = tmp_path_factory.mktemp("changed")
+    m = read_map(demo_map.out / "map.yaml")
+    occ = m.occupied.copy()
+    free = m.free.copy()
+    dist = cv2.distanceTransform((~occ & free).astype(np.uint8), cv2.DIST_L2, 5)
+    r, c = np.unravel_index(int(np.argmax(dist)), dist.shape)  # the most open spot
+    occ[r - 4:r + 4, c - 6:c + 6] = True
+    from semmap.io.mapserver import write_map
+
+    write_map(d / "map.yaml", m.spec, occ, known=occ | free)
+    xy = (m.spec.origin_x + (c + 0.5) * m.spec.resolution, m.spec.origin_y + (r + 0.5) * m.spec.resolution)
+    return d / "map.yaml", xy
+
+
+def test_diff_against_a_plain_map_finds_the_new_obstacle_and_writes_every_file(demo_map, changed, tmp_path, capsys):
+    b_yaml, where = changed
+    out, upd = tmp_path / "diff", tmp_path / "updated"
+    assert main(["diff", str(demo_map.out), str(b_yaml), "--out", str(out), "--update", str(upd)]) == 0
+    text = capsys.readouterr().out
+    assert "geometric diff only" in text and "1 new static obstacle" in text
+    assert {p.name for p in out.iterdir()} == {"changes.json", "changes.png", "changes.yaml", "overlay.png",
+                                             "report.md"}
+    data = json.loads((out / "changes.json").read_text())
+    assert data["semantic"] is False and data["counts"]["static_added"] == 1
+    assert sum(data["counts"].values()) == 1  # nothing else: the same map, the same cells
+    (c,) = data["changes"]
+    assert np.hypot(c["centroid"][0] - where[0], c["centroid"][1] - where[1]) < 0.1
+    assert c["area_m2"] == pytest.approx(0.6 * 0.4, rel=0.2)
+    assert np.allclose(data["alignment"]["T_a_b"], 0.0, atol=0.02)  # the same map: no motion
+    # the mask, read as nav2 reads it: A's grid, resolution and origin; 1 on the obstacle, 0 elsewhere
+    meta, grid = nav2_raw(out / "changes.yaml")
+    a = read_map(demo_map.out / "map.yaml")
+    assert grid.shape == a.spec.shape and meta["resolution"] == a.spec.resolution
+    assert meta["origin"][:2] == [a.spec.origin_x, a.spec.origin_y]
+    rows, cols = np.nonzero(grid == 1)
+    assert 0.8 * 96 <= rows.size <= 96 and not (grid == 2).any() and not (grid < 0).any()
+    assert abs(a.spec.origin_x + (cols.mean() + 0.5) * a.spec.resolution - where[0]) < 0.1
+    # the updated map: the demo map with the obstacle, read back by load_map and as map_server does
+    m = semmap.load_map(upd)
+    assert m.occupied[rows, cols].all() and m.occupied.sum() == a.occupied.sum() + rows.size
+    assert json.loads((upd / "update.json").read_text())["cells_added"] == rows.size
+    again = semmap.diff(upd, b_yaml)
+    assert sum(again.counts().values()) == 0
+
+
+def test_bad_input_is_one_line_and_leaves_nothing(demo_map, changed, tmp_path, capsys):
+    out = tmp_path / "diff"
+    assert main(["diff", str(demo_map.out), str(tmp_path / "nowhere"), "--out", str(out)]) == MapFolderError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nowhere" in err[0] and not out.exists()
+    # an empty map cannot be aligned: exit 8, one line, no folder
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    m = read_map(changed[0])
+    from semmap.io.mapserver import write_map
+
+    write_map(empty / "map.yaml", m.spec, np.zeros(m.spec.shape, bool), known=m.free)
+    assert main(["diff", str(demo_map.out), str(empty), "--out", str(out)]) == AlignmentError.exit_code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "too few to align" in err[0] and not out.exists()
+    # --update needs a semmap map folder as A
+    assert main(["diff", str(changed[0]), str(demo_map.out), "--out", str(out), "--update",
+                 str(tmp_path / "u")]) == 2
+    assert "--update needs session A" in capsys.readouterr().err
+    assert not (tmp_path / "u").exists() and not out.exists()
+    # an existing --out without --force
+    out.mkdir()
+    assert main(["diff", str(demo_map.out), str(changed[0]), "--out", str(out)]) == 4
+    assert "already exists" in capsys.readouterr().err
+
+
+def test_a_copy_of_a_map_folder_has_no_changes(demo_map, tmp_path):
+    b = tmp_path / "b"
+    shutil.copytree(demo_map.out, b)
+    r = semmap.diff(demo_map.out, b)
+    assert r.semantic and sum(r.counts().values()) == 0 and not r.mask.any()
+    assert r.alignment.inlier_fraction > 0.98 and np.allclose(r.alignment.T_a_b, 0.0, atol=0.02)

@@ -90,19 +90,24 @@ def big_maps(size_m: float = 100.0, res: float = 0.05, seed: int = 7) -> tuple[f
     rng = np.random.default_rng(seed)
     n = int(size_m / res)
     occ = np.zeros((n, n), np.uint8)
-    room = int(8.0 / res)
-    for k in range(0, n + 1, room):  # walls every 8 m, with a door in each
-        k = min(k, n - 2)
-        cv2.line(occ, (0, k), (n - 1, k), 1, 2)
-        cv2.line(occ, (k, 0), (k, n - 1), 1, 2)
-    for k in range(0, n - room, room):
-        for j in range(0, n - room, room):
-            d = j + int(rng.uniform(1.5, 6.5) / res)
-            occ[k:k + 3, d:d + int(0.9 / res)] = 0  # a door in the wall below the room
-            d = k + int(rng.uniform(1.5, 6.5) / res)
-            occ[d:d + int(0.9 / res), j:j + 3] = 0
-            for _ in range(rng.integers(2, 6)):  # furniture: legs of a box
-                cx, cy = j + rng.integers(20, room - 20), k + rng.integers(20, room - 20)
+    # rooms of random sizes (5-11 m) along both axes, a door in each wall piece, furniture legs
+    xs = np.cumsum(np.r_[0, rng.uniform(5.0, 11.0, 30)]) / res
+    ys = np.cumsum(np.r_[0, rng.uniform(5.0, 11.0, 30)]) / res
+    xs = np.r_[xs[xs < n - 60].astype(int), n - 3]
+    ys = np.r_[ys[ys < n - 60].astype(int), n - 3]
+    for x in xs:
+        cv2.line(occ, (int(x), 0), (int(x), n - 1), 1, 3)
+    for y in ys:
+        cv2.line(occ, (0, int(y)), (n - 1, int(y)), 1, 3)
+    for i in range(len(ys) - 1):
+        for j in range(len(xs) - 1):
+            x0, x1, y0, y1 = int(xs[j]), int(xs[j + 1]), int(ys[i]), int(ys[i + 1])
+            d = int(rng.uniform(x0 + 20, x1 - 40))
+            occ[y0 - 2:y0 + 3, d:d + int(0.9 / res)] = 0  # a door in the wall below the room
+            d = int(rng.uniform(y0 + 20, y1 - 40))
+            occ[d:d + int(0.9 / res), x0 - 2:x0 + 3] = 0
+            for _ in range(int(rng.integers(1, 5))):  # furniture: the legs of a box
+                cx, cy = int(rng.integers(x0 + 25, x1 - 25)), int(rng.integers(y0 + 25, y1 - 25))
                 for dx in (-8, 8):
                     for dy in (-6, 6):
                         occ[cy + dy, cx + dx] = 1

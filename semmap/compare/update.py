@@ -131,7 +131,9 @@ def write_updated_map(r: DiffResult, out: Path) -> list[str]:
     files = sorted({*summary.get("files", []), "update.json"})
     summary["files"] = files
     (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    _picture(out, CleanedMap(a.spec, occupied, free, unknown, semi, cl.dynamic_removed & unknown, objects), a)
+    _picture(out, CleanedMap(a.spec, occupied, free, unknown, semi, cl.dynamic_removed & unknown, objects), a,
+             f"{r.a.name} updated with {len(applied)} changes from {r.b.name}: {int((r.mask == 1).sum())} cells "
+             f"added, {int((r.mask == 2).sum())} removed, {len(objects)} movable objects")
     (out / "report.md").write_text(
         f"# Updated map\n\n`{r.a.path}` with {len(applied)} changes from `{r.b.path}` applied "
         f"({int((r.mask == 1).sum())} cells added, {int((r.mask == 2).sum())} removed; see update.json).\n\n"
@@ -139,21 +141,37 @@ def write_updated_map(r: DiffResult, out: Path) -> list[str]:
     return [c["type"] for c in applied]
 
 
-def _picture(out: Path, cleaned: CleanedMap, a: MapFolder) -> None:
+def _picture(out: Path, cleaned: CleanedMap, a: MapFolder, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch, Polygon
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     from ..mapfolder.report import semantic_image
+    from ..palette import rgb01
 
-    img, _ = semantic_image(cleaned, a.layers, a.class_names)
+    img, legend = semantic_image(cleaned, a.layers, a.class_names)
     spec = cleaned.spec
     extent = (spec.origin_x, spec.origin_x + spec.width * spec.resolution,
               spec.origin_y, spec.origin_y + spec.height * spec.resolution)
-    fig, ax = plt.subplots(figsize=(10, 10 * spec.height / max(spec.width, 1) * 0.9 + 0.8), dpi=100)
+    w_m, h_m = extent[1] - extent[0], extent[3] - extent[2]
+    fig, ax = plt.subplots(figsize=(11.0, float(np.clip(11.0 * h_m / max(w_m, 1e-6) * 0.8 + 1.0, 3.5, 12.0))),
+                           dpi=110)
     ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
-    ax.set_title("updated map", fontsize=9)
+    for o in cleaned.objects:
+        if len(o.footprint) >= 3:
+            ax.add_patch(Polygon(np.asarray(o.footprint), closed=True, fill=False, lw=0.7, ls="--",
+                                 edgecolor="#333333"))
+    handles = [Patch(facecolor=rgb01(c), edgecolor="0.6", label=k) for k, c in legend.items()]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    bar = 1.0 if w_m < 15 else 5.0
+    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower right", pad=0.4, frameon=True,
+                                  size_vertical=spec.resolution * 2))
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("x [m] (map frame)")
+    ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
     fig.tight_layout()
     fig.savefig(out / "semantic.png", bbox_inches="tight")

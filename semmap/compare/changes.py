@@ -319,12 +319,9 @@ def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
         ca = np.stack([objs_a[i].centroid for i in ia])
         cb = np.stack([objs_b[j].centroid for j in ib])
         dist = np.linalg.norm(ca[:, None, :] - cb[None, :, :], axis=2)
-        sa = np.array([sorted(objs_a[i].src.size) for i in ia])
-        sb = np.array([sorted(objs_b[j].src.size) for j in ib])
-        # a similar footprint: each side within a factor of two (legs seen or not change a box by a leg)
-        ratio = np.maximum(sa[:, None, :], 0.05) / np.maximum(sb[None, :, :], 0.05)
-        similar = np.all((ratio < 2.0) & (ratio > 0.5), axis=2)
-        cost = np.where(similar & (dist <= st.max_move_m), dist, 1e6)
+        # by class and distance only: what a session saw of one object (two legs of a bed, or four) can
+        # differ by more than any size test would allow
+        cost = np.where(dist <= st.max_move_m, dist, 1e6)
         ra, rb = linear_sum_assignment(cost)
         for x, y in zip(ra, rb, strict=True):
             if cost[x, y] < 1e6:
@@ -402,14 +399,14 @@ def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Ob
 
 
 def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group_cells: float,
-                       min_cells: int) -> tuple[list[Change], NDArray[np.bool_]]:
+                       min_cells: int) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Connected pieces of ``mask`` (cells up to ``group_cells`` apart join), as changes of ``kind``;
-    also the cells of the pieces kept."""
+    also the cells of the pieces kept, the pieces' label image and each change's label."""
     if not mask.any():
-        return [], np.zeros_like(mask)
+        return [], np.zeros_like(mask), np.zeros(mask.shape, np.int32), []
     joined = _dilate(mask, group_cells / 2.0)
     lab, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
-    lab = np.where(mask, lab, 0)
+    lab = np.where(mask, lab, 0).astype(np.int32)
     counts = np.bincount(lab.ravel(), minlength=n + 1)
     keep_ids = np.flatnonzero(counts >= min_cells)
     keep_ids = keep_ids[keep_ids > 0]
@@ -424,7 +421,7 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
             cx = spec.origin_x + (cols[sel].mean() + 0.5) * spec.resolution
             cy = spec.origin_y + (rows[sel].mean() + 0.5) * spec.resolution
             out.append(Change(kind, (float(cx), float(cy)), float(sel.sum() * area), int(sel.sum())))
-    return out, kept
+    return out, kept, lab, [int(k) for k in keep_ids]
 
 
 def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.float64],
@@ -443,12 +440,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     fine = min(tol, 1.0)
     near_a = np.where(semi_b, _dilate(lo.occ_a, fine), _dilate(lo.occ_a, tol))
     near_b = np.where(semi_a, _dilate(lo.occ_b, fine), _dilate(lo.occ_b, tol))
-    # an obstacle is doubted where its own session saw people: a person B's cleaning left in is not an
-    # obstacle added, but a cabinet B found where people stood in A is
-    people_a = _dilate(lo.dyn_a, st.people_margin_m / res)
-    people_b = _dilate(lo.dyn_b, st.people_margin_m / res)
-    added = lo.occ_b & lo.free_a & ~near_a & ~(people_b & ~semi_b)
-    removed = lo.occ_a & lo.free_b & ~near_b & ~(people_a & ~semi_a)
+    # where either session saw people, an obstacle may be a person the other's cleaning left in (a
+    # person standing out of the camera's view has no label of its own): no change
+    added = lo.occ_b & lo.free_a & ~near_a & ~(people & ~semi_b)
+    removed = lo.occ_a & lo.free_b & ~near_b & ~(people & ~semi_a)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0}
@@ -507,11 +502,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # cells flagged movable, in an object or not, are never static changes
         on_objects = _dilate(on_objects | (lo.semi_a & lo.occ_a) | (lo.semi_b & lo.occ_b), near)
 
-    # static changes: what is left, in connected pieces
+    # static changes: what is left, in connected pieces; a piece touching an object that changed is
+    # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
+    near_object_change = _dilate(mask > 0, st.group_m / res)
     for kind, cells, value in (("static_added", added & ~on_objects, 1), ("static_removed", removed & ~on_objects, 2)):
-        found, kept = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
-        changes += found
+        found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
+        touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
+        changes += [c for k, c in enumerate(found) if ids[k] not in touching]
         mask[kept] = value
 
     # floor only one session observed
@@ -520,7 +518,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     for kind, cells in (("newly_explored", obs_b & ~obs_a), ("no_longer_covered", obs_a & ~obs_b)):
         # thin slivers along the edge of the other map's view are not areas: open them away first
         opened = cv2.morphologyEx(cells.astype(np.uint8), cv2.MORPH_OPEN, _disk(3.0)) > 0
-        found, _ = _component_changes(opened, spec, kind, 1.0, min_explored)
+        found, _, _, _ = _component_changes(opened, spec, kind, 1.0, min_explored)
         changes += found
     order = {t: i for i, t in enumerate(CHANGE_TYPES)}
     changes.sort(key=lambda c: (order[c.type], -c.area_m2))

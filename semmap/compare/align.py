@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 from ..errors import AlignmentError
 from ..geometry import se2_apply, wrap_angle
 from ..records import GridSpec
+from ..register.metrics import align_se2
 from .session import Session
 
 __all__ = ["AlignInput", "Alignment", "align_maps"]
@@ -197,12 +198,7 @@ def _icp(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, pa: 
             ok = np.isfinite(d)
             if ok.sum() < 10:
                 return pose
-            p, r = pb[ok], pa[j[ok]]
-            pc, rc = p.mean(axis=0), r.mean(axis=0)
-            h = (p - pc).T @ (r - rc)
-            th = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-            t = rc - _rot(th) @ pc
-            new = np.array([t[0], t[1], th])
+            new = align_se2(pb[ok], pa[j[ok]])
             done = np.linalg.norm(new[:2] - pose[:2]) < 1e-4 and abs(float(wrap_angle(new[2] - pose[2]))) < 1e-5
             pose = new
             if done:

@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 from ..geometry import se2_apply, se2_inverse, wrap_angle
 from ..grid import SemiStaticObject
 from ..records import GridSpec
+from ..register.metrics import align_se2
 from .session import Session
 
 __all__ = [
@@ -259,13 +260,7 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
         keep = d <= max(float(np.median(d)) * 3.0, 0.05)
         if keep.sum() < 2:
             break
-        p, q = src[keep], dst[j[keep]]
-        pc, qc = p.mean(axis=0), q.mean(axis=0)
-        h = (p - pc).T @ (q - qc)
-        yaw = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-        cs, sn = math.cos(yaw), math.sin(yaw)
-        tt = qc - np.array([[cs, -sn], [sn, cs]]) @ pc
-        new = np.array([tt[0], tt[1], yaw])
+        new = align_se2(src[keep], dst[j[keep]])
         done = np.allclose(new, pose, atol=1e-5)
         pose = new
         if done:

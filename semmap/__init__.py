@@ -22,6 +22,7 @@ _LAZY = {
     "build": "semmap.pipeline",
     "load_map": "semmap.mapfolder.reader",
     "diff": "semmap.compare",
+    "diff_history": "semmap.compare.history",
     "DiffResult": "semmap.compare",
     "MapFolder": "semmap.mapfolder.reader",
     "BuildSummary": "semmap.mapfolder.summary",
@@ -52,6 +53,7 @@ __all__ = ["__version__", *_LAZY]  # noqa: PLE0604 - the lazy names are strings
 if TYPE_CHECKING:  # pragma: no cover
     # ruff: noqa: F401
     from .compare import DiffResult, diff
+    from .compare.history import diff_history
     from .config import BuildConfig, SimConfig
     from .errors import SemmapError
     from .io.bag import BagInfo, bag_info

@@ -78,3 +78,25 @@ def test_an_empty_map_is_refused_with_one_line():
     empty = AlignInput(b.spec, np.zeros(b.spec.shape, bool), b.free)
     with pytest.raises(AlignmentError, match=r"map B has 0 wall cells: too few to align on"):
         align_maps(AlignInput.from_session(a), empty)
+
+
+def test_a_history_of_three_sessions_gathers_a_move_and_its_return_into_one_place():
+    from semmap.compare.history import diff_history
+
+    week1, week2, week3 = _plan(), _plan(), _plan()
+    week2.objects[2] = ("dining table", (12.6, 8.4), (1.6, 0.8), 0.5)  # moved and turned
+    week3.walls.append((2.0, 3.0, 4.5, 3.0))  # the table is back; a new partition
+    poses = [np.array([1.0, 0.5, 0.3]), np.array([9.0, 7.5, 2.6]), np.array([-3.0, 12.0, -1.9])]
+    sessions = [p.session(t, f"week{k + 1}") for k, (p, t) in enumerate(zip((week1, week2, week3), poses))]
+    h = diff_history(sessions)
+    assert [d.counts()["object_moved"] for d in h.steps] == [1, 1]
+    assert [d.counts()["static_added"] for d in h.steps] == [0, 1]
+    table = [p for p in h.places if any(e["type"] == "object_moved" for _, e in p.events)]
+    assert len(table) == 1 and [k for k, _ in table[0].events] == [1, 2]  # week2 and week3
+    # positions are in week1's frame: the table's home, where week1 saw it
+    home = se2_apply(se2_inverse(poses[0]), np.array([[13.5, 8.0]]))[0]
+    starts = [e["from"] for _, e in table[0].events]
+    assert np.allclose(starts[0], home, atol=0.1)
+    wall = [p for p in h.places if p.events[0][1]["type"] == "static_added"]
+    assert len(wall) == 1 and wall[0].events[0][0] == 2
+    assert h.as_dict()["places"][0]["changed_in"] == ["week2", "week3"]

@@ -108,3 +108,19 @@ def test_a_copy_of_a_map_folder_has_no_changes(demo_map, tmp_path):
     r = semmap.diff(demo_map.out, b)
     assert r.semantic and sum(r.counts().values()) == 0 and not r.mask.any()
     assert r.alignment.inlier_fraction > 0.98 and np.allclose(r.alignment.T_a_b, 0.0, atol=0.02)
+
+
+def test_three_sessions_give_a_history_folder(demo_map, changed, tmp_path, capsys):
+    out = tmp_path / "history"
+    assert main(["diff", str(demo_map.out), str(changed[0]), str(demo_map.out), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "change history of 3 sessions" in text
+    h = json.loads((out / "history.json").read_text())
+    assert [s["counts"]["static_added"] for s in h["steps"]] == [1, 0]
+    assert [s["counts"]["static_removed"] for s in h["steps"]] == [0, 1]  # the obstacle is gone again
+    (place,) = h["places"]
+    assert len(place["changed_in"]) == 2 and (out / "history.md").is_file()
+    assert len(list((out / "steps").iterdir())) == 2
+    assert main(["diff", str(demo_map.out), str(changed[0]), str(demo_map.out), "--out", str(tmp_path / "x"),
+                 "--update", str(tmp_path / "u")]) == 2
+    assert "--update takes two sessions" in capsys.readouterr().err

@@ -310,12 +310,14 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     pb_choice = pb_every[:: max(1, len(pb_every) // 8000)]
     fits = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for _, pose, _, _ in refined]
     inliers = [f[0] for f in fits]
-    # the fits, grouped (within 3° and 30 cm they are one fit found twice): a group's strength is its
+    # the fits, grouped (within 5° and 1 m they are one fit found twice, or one fit of two maps that do
+    # not quite agree, as real maps with drift do; a symmetric building's other fit is a turn or a room
+    # away): a group's strength is its
     # members' best inlier count; its pose the member with the best soft count (a point half a cell
     # off counts 0.6, a cell off 0.14), so that of two poses keeping every point within the
     # tolerance the closer one wins
     def same(p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
-        return abs(math.degrees(float(wrap_angle(p[2] - q[2])))) <= 3.0 and float(np.linalg.norm(p[:2] - q[:2])) <= 0.3
+        return abs(math.degrees(float(wrap_angle(p[2] - q[2])))) <= 5.0 and float(np.linalg.norm(p[:2] - q[:2])) <= 1.0
 
     groups: list[list[int]] = []
     for i in range(len(refined)):

@@ -15,7 +15,10 @@ from .align import AlignInput, Alignment, align_maps
 from .changes import CHANGE_TYPES, Change, ChangeSettings, LaidOut, classify_changes, lay_out
 from .session import Session, open_session
 
-__all__ = ["DiffResult", "diff_sessions"]
+__all__ = ["WALL_AGREEMENT", "DiffResult", "diff_sessions"]
+
+#: below this share of B's walls on A's after alignment, the diff warns that its maps disagree
+WALL_AGREEMENT = 0.85
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,16 @@ class DiffResult:
     seconds: float
 
     @property
+    def warnings(self) -> list[str]:
+        """What the user should know before trusting the changes."""
+        out = []
+        if self.alignment.inlier_fraction < WALL_AGREEMENT:
+            out.append(f"the maps agree on only {self.alignment.inlier_fraction:.0%} of B's walls after alignment: "
+                       "some changes may be mapping errors of either session (doubled or bent walls), not "
+                       "changes of the building")
+        return out
+
+    @property
     def spec(self) -> GridSpec:
         """A's grid, the one :attr:`mask` is on."""
         return self.a.spec
@@ -62,6 +75,7 @@ class DiffResult:
             "frame_id": "map (session A)",
             "semantic": self.semantic,
             "alignment": self.alignment.as_dict(),
+            "warnings": self.warnings,
             "counts": self.counts(),
             "left_out": self.left_out,
             "settings": {k: getattr(self.settings, k) for k in self.settings.__dataclass_fields__},

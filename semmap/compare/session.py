@@ -69,8 +69,9 @@ def open_session(path: str | Path) -> Session:
         dyn_hits = mob[Mobility.DYNAMIC].astype(np.float32)
         labelled = mob[Mobility.STATIC:].sum(axis=0, dtype=np.float32)
         dynamic = np.asarray(m.cleaned.dynamic_removed, bool) | ((dyn_hits > 0) & (dyn_hits >= 0.3 * labelled))
+        # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
         return Session(p, m.spec, np.asarray(m.occupied, bool), np.asarray(m.free, bool),
-                       np.asarray(m.semi_static, bool), dynamic, m.objects, True)
+                       np.asarray(m.semi_static, bool), dynamic, m.objects, bool(m.class_names))
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

@@ -60,11 +60,12 @@ def summary_lines(r: DiffResult) -> list[str]:
     al = r.alignment.as_dict()
     t = al["T_a_b"]
     lines = [f"{r.b.name} against {r.a.name}: " + ("semantic diff" if r.semantic else
-                                                  "geometric diff only (a plain map_server map has no "
-                                                  "semantic layers: no object changes)"),
+                                                  "geometric diff only (a map without classes, a plain "
+                                                  "map_server map or a LiDAR-only build: no object changes)"),
              f"  alignment  B in A: x {t[0]:+.3f} m, y {t[1]:+.3f} m, yaw {math.degrees(t[2]):+.2f}°; residual "
              f"{al['residual_m'] * 100:.1f} cm, {al['inlier_fraction'] * 100:.0f} % of B's walls on A's, "
              f"overlap {al['overlap'] * 100:.0f} %"]
+    lines += [f"  warning    {w}" for w in r.warnings]
     counts = r.counts()
     shown = [f"{n} {TYPE_LABELS[k]}" for k, n in counts.items() if n]
     lines.append("  changes    " + (", ".join(shown) if shown else "none"))
@@ -179,13 +180,14 @@ def _report(r: DiffResult, path: Path) -> None:
     lines = [f"# Changes: {r.b.name} against {r.a.name}", "",
              f"- A: `{r.a.path}`", f"- B: `{r.b.path}`",
              "- " + ("semantic diff (both are semmap map folders)" if r.semantic else
-                     "**geometric diff only**: at least one map is a plain map_server map, without semantic "
-                     "layers, so furniture changes are static changes and people cannot be told apart"),
+                     "**geometric diff only**: at least one map has no classes (a plain map_server map or a "
+                     "LiDAR-only build), so furniture changes are static changes and people cannot be told apart"),
              "", "## Alignment", "",
              f"B's map frame in A's: x {t[0]:+.3f} m, y {t[1]:+.3f} m, yaw {math.degrees(t[2]):+.2f}°. "
              f"Residual {al['residual_m'] * 100:.1f} cm over {al['inlier_fraction'] * 100:.0f} % of B's walls; "
              f"{al['overlap'] * 100:.0f} % of B's observed floor lies on A's; ambiguity {al['ambiguity']:.2f} "
-             "(the best other fit's score over this one's).", "", "![overlay](overlay.png)", "",
+             "(where the best other fit and this one disagree, the other's evidence over this one's).",
+             *[f"\n**Warning:** {w}." for w in r.warnings], "", "![overlay](overlay.png)", "",
              "## Changes", "", "| type | count |", "|---|---|"]
     for k, n in r.counts().items():
         lines.append(f"| {TYPE_LABELS[k]} | {n} |")

@@ -124,3 +124,20 @@ def test_three_sessions_give_a_history_folder(demo_map, changed, tmp_path, capsy
     assert main(["diff", str(demo_map.out), str(changed[0]), str(demo_map.out), "--out", str(tmp_path / "x"),
                  "--update", str(tmp_path / "u")]) == 2
     assert "--update takes two sessions" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stage", ["semmap.compare.write._overlay", "semmap.compare.update._picture"])
+def test_an_interruption_while_writing_leaves_no_folder(demo_map, changed, tmp_path, monkeypatch, capsys, stage):
+    """Ctrl-C (or SIGTERM, raised the same way) while the diff folder or the updated map is being
+    written: no output folder, no hidden partial folder, and the signal's exit code."""
+    module, name = stage.rsplit(".", 1)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module + "." + name, interrupted)
+    out, upd = tmp_path / "diff", tmp_path / "updated"
+    code = main(["diff", str(demo_map.out), str(changed[0]), "--out", str(out), "--update", str(upd)])
+    assert code == 130
+    assert not out.exists() and not upd.exists()
+    assert not list(tmp_path.glob(".*partial*")), "a hidden partial folder was left"

@@ -31,10 +31,24 @@ def diff(a: str | Path | Session, b: str | Path | Session, *, out: str | Path | 
     if update is not None:
         check_output(update, force, marker="summary.json", inputs=inputs, what="map folder")
     result = diff_sessions(a, b, settings=settings)
-    if update is not None:
-        write_update(result, update, force)
-    if out is not None:
-        write_diff(result, out, force)
+    if out is None and update is None:
+        return result
+    import contextlib
+
+    from ..io.atomic import atomic_dir
+    from .update import write_updated_map
+    from .write import write_diff_files
+
+    # both folders are written whole before either appears: an interruption leaves neither
+    with contextlib.ExitStack() as stack:
+        if update is not None:
+            tmp_u = stack.enter_context(atomic_dir(update, force, marker="summary.json", inputs=inputs,
+                                                   what="map folder"))
+            write_updated_map(result, tmp_u)
+        if out is not None:
+            tmp_d = stack.enter_context(atomic_dir(out, force, marker="changes.json", inputs=inputs,
+                                                   what="diff folder"))
+            write_diff_files(result, tmp_d)
     return result
 
 

@@ -14,10 +14,13 @@ matching", ICRA 2009; Cartographer's branch-and-bound search rests on the same s
 3. **Full resolution.** A robust ICP (point to point, the inlier distance shrinking from 30 cm to
    1.5 cells) takes each to convergence; moved furniture and new walls fall outside the inlier
    distance and pull nothing.
-4. **Which one, and how sure.** Each refined candidate is scored by the share of B's wall points
-   (those that land in A's observed area) within 1.5 cells of A's walls. The best wins;
-   ``ambiguity`` is the best distinct other candidate's score over the winner's (1.0: a tie, as
-   in a bare rectangular room turned half way round).
+4. **Which one, and how sure.** Candidates within 5° and 1 m are one fit. Each is scored by the
+   B points (walls and furniture, where A observed) within 1.5 cells of A's; the fit with the most
+   wins, and within a fit the pose with the best soft count. ``ambiguity`` compares the winner with
+   each other fit on the points only one of the two explains (1.0: a tie, as in a bare rectangular
+   room turned half way round; the walls of a ward of identical rooms fit turned round too, its
+   furniture does not).
+5. **Off the lattice.** A last search on a smooth field of A's walls, read between cells.
 
 Too little overlap, too few inliers or too ambiguous a fit raise
 :class:`~semmap.errors.AlignmentError` with what was measured against what threshold.
@@ -299,30 +302,27 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     for _, th, t in top:
         pose = np.array([t[0], t[1], th])
         pose = _refine_window(pose, sub, ffield, lo, fine_res, half_deg=2.5, half_m=1.5 * coarse_res)
-        pose = _icp(pose, pb, tree, pa, res)
-        frac, count, rms = _score(pose, pb, tree, a, seen_a, 1.5 * res)
-        refined.append((count, pose, frac, rms))
+        refined.append(_icp(pose, pb, tree, pa, res))
     # which candidate: structure and furniture together, and only the points on which two fits
     # disagree count (a ward of identical rooms matches its walls turned half way round as well as
     # straight; the few things that differ decide)
     pa_all, pb_every = a.points(with_movable=True), b.points(with_movable=True)
     tree_all = cKDTree(pa_all)
     pb_choice = pb_every[:: max(1, len(pb_every) // 8000)]
-    fits = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for _, pose, _, _ in refined]
+    fits = [_inliers(pose, pb_choice, tree_all, a, seen_a, 1.5 * res) for pose in refined]
     inliers = [f[0] for f in fits]
     # the fits, grouped (within 5° and 1 m they are one fit found twice, or one fit of two maps that do
     # not quite agree, as real maps with drift do; a symmetric building's other fit is a turn or a room
-    # away): a group's strength is its
-    # members' best inlier count; its pose the member with the best soft count (a point half a cell
-    # off counts 0.6, a cell off 0.14), so that of two poses keeping every point within the
-    # tolerance the closer one wins
+    # away): a group's strength is its members' best inlier count; its pose the member with the best
+    # soft count (a point half a cell off counts 0.6, a cell off 0.14), so that of two poses keeping
+    # every point within the tolerance the closer one wins
     def same(p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
         return abs(math.degrees(float(wrap_angle(p[2] - q[2])))) <= 5.0 and float(np.linalg.norm(p[:2] - q[:2])) <= 1.0
 
     groups: list[list[int]] = []
     for i in range(len(refined)):
         for g in groups:
-            if same(refined[i][1], refined[g[0]][1]):
+            if same(refined[i], refined[g[0]]):
                 g.append(i)
                 break
         else:
@@ -330,7 +330,7 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     groups.sort(key=lambda g: -max(int(inliers[i].sum()) for i in g))
     reps = [max(g, key=lambda i: fits[i][1]) for g in groups]
     best_i = reps[0]
-    best = refined[best_i][1]
+    best = refined[best_i]
     ambiguity = 0.0
     for i in reps[1:]:
         only_best = int((inliers[best_i] & ~inliers[i]).sum())

@@ -234,22 +234,6 @@ def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, 
     return out
 
 
-def _seen_share(ob: _Obj, observed: NDArray[np.bool_], spec: GridSpec) -> float:
-    """Share of the object's footprint (or its cells, when it has none) the other session observed."""
-    if ob.footprint.shape[0] >= 3:
-        img = np.zeros(spec.shape, np.uint8)
-        pts = np.round(((ob.footprint - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16)
-        cv2.fillPoly(img, [pts.astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
-        cells = img > 0
-    else:
-        cells = np.zeros(spec.shape, bool)
-    if ob.cells.size:
-        r, c = ob.cells[:, 0], ob.cells[:, 1]
-        cells[r, c] = True
-    n = int(cells.sum())
-    return float(observed[cells].sum()) / n if n else 0.0
-
-
 def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.float64],
          iters: int = 30) -> tuple[NDArray[np.float64], float]:
     """Point-to-point ICP of ``src`` onto ``dst`` from ``pose``; the pose and its RMS residual."""

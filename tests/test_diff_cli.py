@@ -3,8 +3,14 @@ nav2's map_server loads it (mode raw), the updated map, a plain map_server map, 
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 
 import cv2
 import numpy as np
@@ -141,3 +147,54 @@ def test_an_interruption_while_writing_leaves_no_folder(demo_map, changed, tmp_p
     assert code == 130
     assert not out.exists() and not upd.exists()
     assert not list(tmp_path.glob(".*partial*")), "a hidden partial folder was left"
+
+
+def _big_floor(path, size_m=60.0, seed=3):
+    """A floor of rooms of random sizes, with doors and furniture legs, as a map_server map."""
+    from semmap.io.mapserver import write_map
+    from semmap.records import GridSpec
+
+    rng = np.random.default_rng(seed)
+    n = int(size_m / 0.05)
+    occ = np.zeros((n, n), np.uint8)
+    xs = np.r_[(np.cumsum(np.r_[0, rng.uniform(5, 11, 20)]) / 0.05).astype(int), n - 3]
+    xs = xs[xs < n]
+    for x in xs:
+        cv2.line(occ, (int(x), 0), (int(x), n - 1), 1, 3)
+        cv2.line(occ, (0, int(x)), (n - 1, int(x)), 1, 3)
+        for k in range(0, n, 200):
+            occ[int(x) - 2:int(x) + 3, k + 40:k + 58] = 0  # doors
+    for _ in range(300):
+        r, c = rng.integers(20, n - 20, 2)
+        occ[r, c] = 1
+    write_map(path, GridSpec(0.05, 0.0, 0.0, n, n), occ > 0)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_during_a_long_diff_leaves_a_whole_folder_or_none(tmp_path, sig):
+    """SIGTERM or Ctrl-C while two 60 m floors are compared: the command ends promptly, with the
+    signal's exit code and one line, or (had it already finished) exit 0 and a whole folder; never
+    a partial folder, and no process left."""
+    _big_floor(tmp_path / "a.yaml")
+    _big_floor(tmp_path / "b.yaml")
+    out = tmp_path / "diff"
+    proc = subprocess.Popen([sys.executable, "-m", "semmap", "diff", str(tmp_path / "a.yaml"),
+                             str(tmp_path / "b.yaml"), "--out", str(out), "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    time.sleep(2.0)  # the imports, then the alignment
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("semmap diff did not end within 30 s of the signal")
+    assert not list(tmp_path.glob(".*partial*")), "a hidden partial folder was left"
+    if proc.returncode == 0:  # it had finished: the folder is whole
+        assert (out / "changes.json").is_file() and (out / "overlay.png").is_file()
+    else:
+        assert proc.returncode == 128 + int(sig) and not out.exists()
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and ("terminated" in lines[0] or "interrupted" in lines[0])
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, 0)
+        pytest.fail("a process of the diff is still running")

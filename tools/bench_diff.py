@@ -193,7 +193,7 @@ def main() -> int:
               "worst displacement error (cm) | false changes | changes found | diff time (s) |")
         print("|---|---|---|---|---|---|---|---|")
         for s in results:
-            moves = list(s["moves"])
+            moves = [m for m in s["moves"] if m["seen"]]  # moves the two sessions could see
             matched = sum(m["matched"] for m in moves)
             errs = [m["displacement_error_m"] for m in moves if m["displacement_error_m"] is not None]
             worst = f"{max(errs) * 100:.1f}" if errs else "-"
@@ -205,7 +205,7 @@ def main() -> int:
             for f in s["false_changes"]:
                 print(f"  false change in {s['pair']}: {f}")
             for m in s["moves"]:
-                if not m["matched"]:
+                if m["seen"] and not m["matched"]:
                     print(f"  move not found in {s['pair']}: {m}")
     real = []
     if not args.big_only and (args.data / "hokuyo_odom_bags").is_dir():

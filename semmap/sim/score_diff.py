@@ -14,8 +14,9 @@ The scores:
   the truth cells a session could have seen change (an added cell: some true beam of B ended within a
   cell of it and A observed the place; a removed cell: some true beam of A ended there and B observed
   the place);
-* **moved objects**: each truth move of a semi-static object some session saw, matched to a reported
-  move of its class starting within 0.5 m, and the reported displacement's error;
+* **moved objects**: each truth move of a semi-static object the sessions could see (B observed
+  where it was, A observed where it went, and each tour's LiDAR hit it), matched to a reported move
+  of its class ending within 0.5 m of its new place, and the reported displacement's error;
 * **false changes**: reported changes (not explored areas) farther than 0.5 m from every truth change.
 """
 
@@ -110,7 +111,8 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
 
     # moved objects: truth moves of semi-static objects, in the world
     reported = [c for c in result.changes if c.type == "object_moved"]
-    rep_from = [se2_apply(ta, np.array([c.from_xy]))[0] for c in reported if c.from_xy]
+    # a reported move is found where its object went ("matched to their new place")
+    rep_to = [se2_apply(ta, np.array([c.to_xy if c.to_xy else c.centroid]))[0] for c in reported]
     moves = []
     hits_a, hits_b = _lidar_hits(tour_a), _lidar_hits(tour_b)
     for t in changes_t:
@@ -125,7 +127,7 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
         for k, c in enumerate(reported):
             if c.class_name != t.get("class"):
                 continue
-            d = float(np.linalg.norm(rep_from[k] - src))
+            d = float(np.linalg.norm(rep_to[k] - dst))
             if d < best_d:
                 best, best_d = k, d
         match = best is not None and best_d <= 0.5

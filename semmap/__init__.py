@@ -7,6 +7,7 @@ The public API::
     info = semmap.bag_info(result.bag)
     m = semmap.load_map("maps/demo")          # a map folder written by semmap build
     d = semmap.diff("maps/week1", "maps/week2", out="diffs/week2")  # what changed
+    e = semmap.export("maps/demo", "robot/demo", semmap.ExportSettings(crop_margin=0.5))  # maps for a robot
 
 Heavy modules load on first use, so ``import semmap`` stays fast.
 """
@@ -24,6 +25,10 @@ _LAZY = {
     "diff": "semmap.compare",
     "diff_history": "semmap.compare.history",
     "DiffResult": "semmap.compare",
+    "export": "semmap.robotmap",
+    "ExportSettings": "semmap.robotmap",
+    "ExportResult": "semmap.robotmap",
+    "MapEncoding": "semmap.robotmap",
     "MapFolder": "semmap.mapfolder.reader",
     "BuildSummary": "semmap.mapfolder.summary",
     "ScanStream": "semmap.paint.stream",
@@ -65,6 +70,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .paint.stream import ScanStream
     from .pipeline import BuildResult, build
     from .records import Calibration, CameraIntrinsics, Mobility
+    from .robotmap import ExportResult, ExportSettings, MapEncoding, export
     from .sim.scenarios import SCENARIOS
     from .sim.tour import SimulationResult, simulate
     from .sim.world import World, load_world

@@ -12,6 +12,7 @@
        grid      fusion and cleaning
        mapfolder writing and reading the map folder
        compare   semmap diff: comparing sessions (alignment, changes, updated maps)
+       robotmap  semmap export: maps, masks and object lists for a robot from a saved session
        tools     sim (the simulator and its scoring), calib (calibration)
        run       workers (the processes), pipeline (semmap build)
        cli       the command line, and the package's own lazy API (semmap/__init__.py)
@@ -50,6 +51,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("grid", ("semmap.grid",)),
     ("mapfolder", ("semmap.mapfolder",)),
     ("compare", ("semmap.compare",)),
+    ("robotmap", ("semmap.robotmap",)),
     ("tools", ("semmap.sim", "semmap.calib")),
     ("run", ("semmap.workers", "semmap.pipeline")),
     ("cli", ("semmap.cli", "semmap.__main__", "semmap")),

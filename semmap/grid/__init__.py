@@ -7,7 +7,8 @@
 * :mod:`semmap.grid.metrics` scores maps against ground truth.
 """
 
-from .clean import CleanedMap, SemiStaticObject, clean, group_cells
+from .clean import CleanedMap, SemiStaticObject, clean, evidence_occupancy, group_cells
 from .fusion import N_MOBILITY, GridLayers, SemanticGrid
 
-__all__ = ["N_MOBILITY", "CleanedMap", "GridLayers", "SemanticGrid", "SemiStaticObject", "clean", "group_cells"]
+__all__ = ["N_MOBILITY", "CleanedMap", "GridLayers", "SemanticGrid", "SemiStaticObject", "clean", "evidence_occupancy",
+           "group_cells"]

@@ -69,7 +69,8 @@ from ..config import CleaningConfig
 from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
-__all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "group_cells", "nearest_value"]
+__all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "evidence_occupancy", "group_cells",
+           "nearest_value"]
 
 log = logging.getLogger(__name__)
 
@@ -503,9 +504,15 @@ def crop_sightings(sightings: NDArray[np.int32], r0: int, r1: int, c0: int, c1: 
     return out
 
 
-def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> CleanedMap:
-    spec = layers.spec
-    res = spec.resolution
+def evidence_occupancy(layers: GridLayers, cfg: CleaningConfig | None = None
+                       ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Step 1 of cleaning, the occupancy before any semantic decision: (occupied, free), (H, W) bool.
+
+    Occupied: log-odds above ``occupied_logodds``, or a return from at least ``hit_ratio`` of the
+    scans observing the cell (``min_hits`` at least); free: observed with log-odds below
+    ``free_logodds``. The two can overlap (a chair leg whose cell rays mostly pass); occupied wins.
+    """
+    cfg = cfg if cfg is not None else CleaningConfig()
     lo = layers.log_odds
     occ = lo > cfg.occupied_logodds
     if cfg.hit_ratio > 0:
@@ -514,6 +521,13 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
         h = layers.hits.astype(np.float32)
         occ |= (h >= cfg.min_hits) & (h >= cfg.hit_ratio * (h + layers.free))
     free = layers.observed & (lo < cfg.free_logodds)
+    return occ, free
+
+
+def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> CleanedMap:
+    spec = layers.spec
+    res = spec.resolution
+    occ, free = evidence_occupancy(layers, cfg)
 
     m = layers.mobility.astype(np.float32)
     s_static, s_semi, s_dyn = m[Mobility.STATIC], m[Mobility.SEMI_STATIC], m[Mobility.DYNAMIC]

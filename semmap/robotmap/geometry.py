@@ -141,5 +141,5 @@ def warp_plane(plane: Plane, src: GridSpec, dst: GridSpec, T: NDArray[np.float64
         landed = np.full(dst.shape, -1.0, np.float32)
         np.maximum.at(landed, (r, c), np.nan_to_num(src_p, nan=-1.0).astype(np.float32))
         prob = np.where(landed >= 0, np.maximum(prob, landed), prob)
-    prob = np.where(prob < 0, np.nan, prob).astype(np.float32)
-    return Plane(occ, free & ~occ, prob)
+    out = np.asarray(np.where(prob < 0, np.nan, prob), np.float32)
+    return Plane(occ, free & ~occ, out)

@@ -20,14 +20,13 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-import numpy as np
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import semmap  # noqa: E402
-from semmap.io.yamlio import read_yaml  # noqa: E402
+import semmap
+from semmap.io.yamlio import read_yaml
 
 
 def main() -> int:

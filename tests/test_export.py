@@ -286,3 +286,80 @@ def test_interrupted_export_leaves_no_folder(folder, tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         semmap.export(folder, tmp_path / "x")
     assert not (tmp_path / "x").exists() and not list(tmp_path.iterdir())
+
+
+def _big_session(demo_folder, path, tiles=6):
+    """The demo's map folder tiled ``tiles`` x ``tiles`` times: a floor of ~3.5 M cells whose export takes
+    seconds, for the signal tests."""
+    import shutil
+
+    shutil.copytree(demo_folder, path)
+    with np.load(path / "grid.npz", allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    shape = data["occupied"].shape
+    for k, v in data.items():
+        if v.ndim == 2 and v.shape == shape:
+            data[k] = np.tile(v, (tiles, tiles))
+        elif v.ndim == 3 and v.shape[1:] == shape:
+            data[k] = np.tile(v, (1, tiles, tiles))
+    data["sightings"] = np.zeros((0, 4), np.int32)
+    np.savez_compressed(path / "grid.npz", **data)
+    img = cv2.imread(str(path / "map.pgm"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(path / "map.pgm"), np.tile(img, (tiles, tiles)))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_during_a_long_export_leaves_a_whole_folder_or_none(folder, tmp_path, sig):
+    """SIGTERM or Ctrl-C while a big session is exported: the command ends promptly with the signal's
+    exit code and one line, or (had it finished) exit 0 and a whole folder; never a partial folder,
+    and no process left."""
+    import contextlib
+    import os
+    import subprocess
+    import sys
+    import time
+
+    big = tmp_path / "big"
+    _big_session(folder, big)
+    out = tmp_path / "exp"
+    proc = subprocess.Popen([sys.executable, "-m", "semmap", "export", str(big), "--out", str(out), "--straighten",
+                             "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    time.sleep(3.0)  # the imports, reading the session, then the layers
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("semmap export did not end within 30 s of the signal")
+    assert not list(tmp_path.glob(".*partial*")), "a hidden partial folder was left"
+    if proc.returncode == 0:
+        assert (out / "export.json").is_file() and (out / "preview.png").is_file()
+    else:
+        assert proc.returncode == 128 + int(sig) and not out.exists(), err
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and ("terminated" in lines[0] or "interrupted" in lines[0])
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, 0)
+        pytest.fail("a process of the export is still running")
+
+
+@pytest.mark.parametrize("kw", [dict(resolution=0.08), dict(crop_margin=0.3), dict(rotate_deg=30.0),
+                                dict(straighten=True, crop_margin=0.2, resolution=0.1)],
+                         ids=lambda kw: ",".join(f"{k}={v}" for k, v in kw.items()))
+def test_every_mode_gives_the_same_cells_after_a_transform(folder, tmp_path, kw):
+    """Scale and raw maps carry the same obstacles and floor as the trinary map through every transform."""
+    got = {}
+    for enc in (MapEncoding(), MapEncoding(mode="scale", image_format="png"), MapEncoding(mode="raw"),
+                MapEncoding(negate=True, image_format="png")):
+        out, _ = _export(folder, tmp_path, f"{enc.mode}{int(enc.negate)}", encoding=enc, masks=False,
+                         layers=("cleaned", "static"), **kw)
+        for rule in RULES:
+            for name in ("cleaned", "static"):
+                data = load(out / f"{name}.yaml", rule)
+                got.setdefault((rule, name), []).append((data == 100, data == 0))
+    for (rule, name), runs in got.items():
+        occ0, free0 = runs[0]
+        assert occ0.any() and free0.any()
+        for occ, free in runs[1:]:
+            assert np.array_equal(occ, occ0) and np.array_equal(free, free0), (rule, name)

@@ -192,8 +192,11 @@ def load_map_folder(path: str | Path) -> MapFolder:
                         for o in json.loads(objects_path.read_text(encoding="utf-8"))["objects"])
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError) as exc:
         raise MapFolderError(f"{objects_path}: malformed object list ({exc!r})") from None
-    cleaned = CleanedMap(spec=spec, occupied=seen.occupied, free=seen.free, unknown=seen.unknown,
-                         semi_static=g["semi_static"], dynamic_removed=g["dynamic_removed"], objects=objects)
+    try:
+        cleaned = CleanedMap(spec=spec, occupied=seen.occupied, free=seen.free, unknown=seen.unknown,
+                             semi_static=g["semi_static"], dynamic_removed=g["dynamic_removed"], objects=objects)
+    except ValueError as exc:
+        raise MapFolderError(f"{folder / 'grid.npz'}: {exc}") from None
     try:
         stamps, poses = read_tum(_need(folder, "trajectory.tum"))
         odom = folder / "odometry.tum"

@@ -54,6 +54,9 @@ def _probability(m: MapFolder) -> NDArray[np.float32]:
 def _class_plane(m: MapFolder, name: str, known: tuple[str, ...]) -> tuple[Plane, str | None]:
     layers = m.layers
     names = layers.class_names
+    if not names:
+        raise ConfigError(f"--layer class:{name}: {m.path} has no classes (a LiDAR-only build: the tour had no "
+                          f"camera)")
     observed = m.layers.observed
     prob = np.full(observed.shape, np.nan, np.float32)
     if name not in names or names.index(name) not in layers.class_ids:

@@ -188,7 +188,12 @@ def export_session(m: MapFolder, out: Path, st: ExportSettings) -> ExportResult:
                   "costmap_filters.yaml"]
         counts["keepout_mask"] = {"keepout": int(keep.sum())}
         counts["speed_mask"] = {f"{v}%": int((speed == v).sum()) for v in np.unique(speed[speed > 0]).tolist()}
-    if not m.cleaned.objects and m.layers.class_names:
+    if not m.layers.class_names:
+        warnings.append("a LiDAR-only map (no camera classes): no furniture is known, so the keepout mask and "
+                        "objects.geojson are empty, and the speed zones near people come from cleaning's leg "
+                        "detector alone" if st.masks else "a LiDAR-only map (no camera classes): objects.geojson "
+                        "is empty")
+    elif not m.cleaned.objects:
         warnings.append("the session has no movable objects: objects.geojson is empty")
     (out / "objects.geojson").write_text(json.dumps(objects_geojson(c.objects, T), indent=1), encoding="utf-8")
     files.append("objects.geojson")

@@ -9,7 +9,7 @@ turned or made coarser, and an obstacle never vanishes.
 * **Straighten** (:func:`dominant_direction`): turn the map so that most walls run along the image's
   axes. The angle is the one that makes the occupied cells' projections on x and y sharpest. The
   exported map's frame is the build's map frame turned about its origin by that angle: the map's
-  ``origin`` stays a plain (x, y, 0) that every consumer reads alike (many ignore its yaw), and the
+  ``origin`` stays a plain (x, y, 0) (nav2's AMCL and costmap static layer read only its position), and the
   turn is recorded in ``export.json``.
 * **Crop**: to the observed cells plus a margin, in whole cells, so cells keep their place.
 * **Resample**: to another resolution, the lower-left corner kept.

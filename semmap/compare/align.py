@@ -140,7 +140,7 @@ def _coarse(pa: NDArray[np.float64], pb: NDArray[np.float64], res: float, step_d
     # is transformed once
     reach = int(math.ceil(2.0 * float(np.linalg.norm(centred, axis=1).max()) / res)) + 2
     size = (sp_fft.next_fast_len(shape[0] + reach, real=True), sp_fft.next_fast_len(shape[1] + reach, real=True))
-    f_field = sp_fft.rfft2(field, size)
+    f_field = sp_fft.rfft2(field, size, workers=-1)
     out = []
     for deg in np.arange(-180.0, 180.0, step_deg):
         th = math.radians(float(deg))
@@ -150,7 +150,7 @@ def _coarse(pa: NDArray[np.float64], pb: NDArray[np.float64], res: float, step_d
         img = np.zeros((int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1), np.float32)
         np.add.at(img, (ij[:, 1], ij[:, 0]), 1.0)
         # full correlation: index j <-> shift j - (hb - 1) of B's raster against A's field
-        corr = sp_fft.irfft2(f_field * sp_fft.rfft2(img[::-1, ::-1], size), size)
+        corr = sp_fft.irfft2(f_field * sp_fft.rfft2(img[::-1, ::-1], size, workers=-1), size, workers=-1)
         k = int(np.argmax(corr))
         r, c = divmod(k, corr.shape[1])
         shift = np.array([c - (img.shape[1] - 1), r - (img.shape[0] - 1)], np.float64)

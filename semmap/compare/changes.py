@@ -254,19 +254,74 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
     return pose, rms
 
 
-def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: bool) -> NDArray[np.float64]:
-    """The rigid motion (x, y, yaw) taking an object's cells ``src`` onto its cells ``dst``: ICP from
-    the centroid shift, and with ``turns`` also from quarter and half turns about the centroid (ICP
-    alone does not find a bed turned by 90°); the best fit wins."""
+def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
+    """Centres of the groups of points (cells) closer than ``link`` to each other: an object's legs."""
+    n = xy.shape[0]
+    parent = np.arange(n)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    for i, j in cKDTree(xy).query_pairs(link):
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[ri] = rj
+    roots = np.array([root(i) for i in range(n)])
+    return np.stack([xy[roots == r].mean(axis=0) for r in np.unique(roots)])
+
+
+def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float,
+                contradicts: Any = None) -> NDArray[np.float64]:
+    """The rigid motion (x, y, yaw) taking an object's cells ``src`` (session A) onto its cells ``dst``
+    (session B). The sessions may have seen different legs of it (two of a bed's four in one, three
+    in the other), so the centroids need not correspond: every pairing of a leg of A with a leg of B,
+    at each candidate turn in ``turns`` (radians), is a hypothesis, as is the centroid shift. A
+    hypothesis is scored by the shares of either session's cells it explains, less the share of A's
+    cells it puts where B saw free floor (``contradicts(xy) -> bool mask``); the best few are refined by
+    ICP and scored again, and the best refined one wins (of equal ones, the smallest motion)."""
+    link = 1.6 * res
+    legs_a, legs_b = _legs(src, link), _legs(dst, link)
+    tree_a, tree_b = cKDTree(src), cKDTree(dst)
+    tol = 1.6 * res
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    best, best_rms = np.zeros(3), math.inf
-    for turn in ((0.0, math.pi / 2, -math.pi / 2, math.pi) if turns else (0.0,)):
-        c, s = math.cos(turn), math.sin(turn)
-        t = cd - np.array([[c, -s], [s, c]]) @ cs
-        pose, rms = _icp(src, dst, np.array([t[0], t[1], turn]))
-        if rms < best_rms - 1e-6:
-            best, best_rms = pose, rms
+
+    def score(pose: NDArray[np.float64]) -> float:
+        moved = se2_apply(pose, src)
+        explained_b = np.count_nonzero(tree_a.query(se2_apply(se2_inverse(pose), dst))[0] <= tol)
+        explained_a = np.count_nonzero(tree_b.query(moved)[0] <= tol)
+        bad = np.count_nonzero(contradicts(moved)) if contradicts is not None else 0
+        shift = float(np.linalg.norm(se2_apply(pose, cs[None])[0] - cs))
+        return (explained_b / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
+
+    hyps = []
+    for turn in turns:
+        c, s_ = math.cos(turn), math.sin(turn)
+        rot = np.array([[c, -s_], [s_, c]])
+        for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b]:
+            pose = np.array([t[0], t[1], turn])
+            hyps.append((score(pose), pose))
+    hyps.sort(key=lambda h: -h[0])
+    best, best_score = hyps[0][1], -math.inf
+    for _, pose in hyps[:6]:
+        refined, _ = _icp(src, dst, pose)
+        sc = score(refined)
+        if sc > best_score + 1e-9:
+            best, best_score = refined, sc
     return best
+
+
+def _reference_point(src: NDArray[np.float64], dst: NDArray[np.float64], motion: NDArray[np.float64]
+                     ) -> NDArray[np.float64]:
+    """Where the object is in A, from what both sessions saw of it: the centre of the smallest box
+    around A's cells and B's cells carried back by the inverse motion (more legs than either alone)."""
+    both = np.concatenate([src, se2_apply(se2_inverse(motion), dst)]).astype(np.float32)
+    if both.shape[0] < 3:
+        return both.mean(axis=0).astype(np.float64)
+    (cx, cy), _, _ = cv2.minAreaRect(both)
+    return np.array([cx, cy], np.float64)
 
 
 def _cells_xy(cells: NDArray[np.intp], spec: GridSpec) -> NDArray[np.float64]:
@@ -450,20 +505,38 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         gone = _merge_fragments(gone, sizes.size_of, spec)
         new = _merge_fragments(new, sizes.size_of, spec)
         pairs, only_a, only_b = _match_objects(gone, new, st)
+        # floor B saw free with no obstacle of B within a cell and a half: an object of A carried there
+        # by a candidate motion is contradicted
+        b_floor = lo.free_b & ~_dilate(lo.occ_b, 1.5)
+
+        def contradicts(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+            c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
+            r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
+            ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
+            out = np.zeros(xy.shape[0], bool)
+            out[ok] = b_floor[r[ok], c[ok]]
+            return out
+
         for ia, ib in pairs:
             oa, ob = gone[ia], new[ib]
             elongated = _elongated(oa) and _elongated(ob)
-            motion = _fit_motion(_cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec), elongated)
-            new_c = se2_apply(motion, oa.centroid[None])[0]
+            src_xy, dst_xy = _cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec)
+            # candidate turns: none and the turn between the two boxes, each also by quarter and half
+            # turns (a box looks alike turned half way round, a square one a quarter)
+            box = _box_turn(oa.yaw, ob.yaw)
+            turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts)
+            from_c = _reference_point(src_xy, dst_xy, motion)
+            new_c = se2_apply(motion, from_c[None])[0]
             # a box looks the same turned half way round: the turn is the short one, within ±90°
             turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0
-            disp = float(np.linalg.norm(new_c - oa.centroid))
+            disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
             if disp < st.still_m and abs(turn) < st.still_deg:
                 continue
             n = int(ob.cells.shape[0])
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
-                                  oa.src.class_name, (float(oa.centroid[0]), float(oa.centroid[1])),
+                                  oa.src.class_name, (float(from_c[0]), float(from_c[1])),
                                   (float(new_c[0]), float(new_c[1])), disp, turn))
             mask[added & zone] = 1
             mask[removed & zone] = 2

@@ -23,6 +23,7 @@ from . import calibrate as calibrate_cmd
 from . import diff as diff_cmd
 from . import evalseg as evalseg_cmd
 from . import export as export_cmd
+from . import importlog as import_cmd
 from . import info as info_cmd
 from . import paint as paint_cmd
 from . import segment as segment_cmd
@@ -30,7 +31,8 @@ from . import simulate as simulate_cmd
 
 EXIT_INTERNAL = 70
 
-COMMANDS = (build_cmd, diff_cmd, export_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd, evalseg_cmd, paint_cmd)
+COMMANDS = (build_cmd, diff_cmd, export_cmd, import_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd,
+            evalseg_cmd, paint_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

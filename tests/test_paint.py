@@ -227,3 +227,15 @@ def test_furniture_points_name_the_object_the_camera_saw_them_on():
     seg = Segmentation(0, frame.label, COCO, instance=instance)
     painted = _painter(t_base_lidar, calib).paint(scan, None, seg).painted
     assert set(painted.instance[a]) == {4} and set(painted.instance[b]) == {5}
+
+
+def test_odometry_at_the_very_stamp_needs_no_neighbour_within_the_gap():
+    """Sparse odometry published at the scan stamps (a CARMEN import, a slow driver): a scan whose stamp has
+    an odometry sample takes it, however far the samples beside it are; between them the gap rule holds."""
+    odom = OdomTrack(max_gap_s=0.5)
+    odom.add(1_000_000_000, np.array([0.0, 0.0, 0.0]))
+    odom.add(4_000_000_000, np.array([1.0, 0.5, 0.3]))
+    assert np.allclose(odom.interpolate(4_000_000_000), [1.0, 0.5, 0.3])
+    assert np.allclose(odom.interpolate(1_000_000_000), [0.0, 0.0, 0.0])
+    assert odom.interpolate(2_000_000_000) is None  # 3 s between samples: not interpolated
+    assert odom.interpolate(np.array([1_000_000_000, 4_000_000_000])).shape == (2, 3)

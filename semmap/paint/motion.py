@@ -53,7 +53,8 @@ class OdomTrack:
 
     def interpolate(self, t_ns: NDArray[np.int64] | int) -> NDArray[np.float64] | None:
         """Poses at ``t_ns`` (scalar → (3,), array → (N, 3)); None if any time is not covered
-        or falls in a gap longer than ``max_gap_s`` between samples.
+        or falls in a gap longer than ``max_gap_s`` between samples (a time with a sample of its own
+        takes that sample, whatever the gaps beside it).
 
         Callers ask for a handful of stamps per scan (the painter: 1-3), so this works in plain
         floats rather than building arrays of the whole window."""
@@ -68,6 +69,9 @@ class OdomTrack:
                 return None
             k = min(max(bisect.bisect_right(t, tq) - 1, 0), len(t) - 2)
             gap = t[k + 1] - t[k]
+            if tq in (t[k], t[k + 1]):  # a sample at the very stamp needs no interpolation, however far the next
+                out[i] = f[k] if tq == t[k] else f[k + 1]
+                continue
             if gap > self.max_gap_ns:
                 return None
             w = (tq - t[k]) / max(gap, 1)

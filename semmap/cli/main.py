@@ -22,6 +22,7 @@ from . import build as build_cmd
 from . import calibrate as calibrate_cmd
 from . import diff as diff_cmd
 from . import evalseg as evalseg_cmd
+from . import evaltraj as evaltraj_cmd
 from . import export as export_cmd
 from . import importlog as import_cmd
 from . import info as info_cmd
@@ -32,7 +33,7 @@ from . import simulate as simulate_cmd
 EXIT_INTERNAL = 70
 
 COMMANDS = (build_cmd, diff_cmd, export_cmd, import_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd,
-            evalseg_cmd, paint_cmd)
+            evalseg_cmd, evaltraj_cmd, paint_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -532,6 +532,10 @@ class EkfConfig(_Model):
     gate_chi2: float = Field(16.27, gt=0, description="reject ICP poses beyond this Mahalanobis² (3 dof, 99.9 %)")
     reset_after: int = Field(5, ge=0, description="after this many ICP results gated out in a row, trust ICP: "
                                                   "the filter restarts from its pose (odometry slipped); 0: never")
+    fit_margin: float = Field(0.0, ge=0, le=1, description="an ICP pose beyond the gate is still taken when the "
+                                                          "scan fits the local map better there than at the "
+                                                          "prediction by more than this share (mean squared "
+                                                          "distance); 1: never (gate on odometry alone)")
 
 
 class RegistrationConfig(_Model):

@@ -226,7 +226,9 @@ def registration_line(r: dict[str, Any]) -> str:
             "odometry": "wheel odometry alone"}.get(mode, mode)
     parts = []
     if mode != "odometry":
-        parts.append(f"{r.get('icp_accepted', 0)} ICP results used")
+        over = r.get("icp_over_odometry", 0)
+        parts.append(f"{r.get('icp_accepted', 0)} ICP results used" + (
+            f" ({over} beyond the gate, fitting the map better than the odometry's prediction)" if over else ""))
         if mode == "fused":
             parts.append(f"{r.get('icp_rejected', 0)} rejected by the filter's gate")
         parts.append(f"{r.get('icp_failed', 0)} failed")

@@ -15,8 +15,12 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
 ``fused`` (default)
     An SE(2) EKF predicts with the odometry increment between consecutive scans;
     ICP starts from that prediction; its result is a pose measurement, gated by
-    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). Rejected or failed
-    ICP leaves the prediction. The fused pose goes into the local map and is the
+    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). A result beyond the
+    gate is still taken (the filter restarts from it) when the scan lies on the
+    local map better at ICP's pose than at the prediction (``ekf.fit_margin``):
+    real wheel odometry drifts in heading and scale more than any noise model
+    allows, and then the gate would reject good matches. Rejected or failed ICP
+    leaves the prediction. The fused pose goes into the local map and is the
     base of the next guess; a scan whose ICP result was rejected is not inserted
     (it contradicts the prediction, so one of them is wrong). After
     ``ekf.reset_after`` rejections in a row ICP is trusted again: the filter
@@ -40,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import RegistrationConfig
-from ..geometry import se2_between, se2_compose, se2_inverse, wrap_angle
+from ..geometry import se2_apply, se2_between, se2_compose, se2_inverse, wrap_angle
 from ..records import Mobility, PaintedScan
 from .ekf import Se2Ekf
 from .kiss import KissMatcher
@@ -96,6 +100,7 @@ class Registrar:
             "scans": 0,  # scans registered
             "icp_accepted": 0,  # ICP results used (icp mode: every successful ICP)
             "icp_rejected": 0,  # ICP results gated out by the EKF (fused)
+            "icp_over_odometry": 0,  # fused: of those, beyond the gate but taken: the scan fits the map better there
             "icp_failed": 0,  # ICP not run or unusable: too few points, empty map, non-finite result
             "filter_resets": 0,  # fused: the EKF restarted from ICP after ekf.reset_after rejections in a row
             "odom_missing": 0,  # scans without odometry (fused: ran as icp; odometry: extrapolated)
@@ -202,6 +207,14 @@ class Registrar:
                     self._max_d2 = max(self._max_d2, d2)
                     self._matcher.update_threshold(guess, result)
                     self._rejected_run = 0
+                elif self._fits_better(prepared, result, self._ekf.pose):
+                    # odometry and ICP disagree, and ICP's pose explains the scan clearly better than the
+                    # prediction does: the odometry is off (a systematic heading error, a slip), not ICP
+                    self._ekf.reset(result, self._ekf.R)
+                    self._counts["icp_accepted"] += 1
+                    self._counts["icp_over_odometry"] += 1
+                    self._matcher.update_threshold(guess, result)
+                    self._rejected_run = 0
                 else:
                     self._counts["icp_rejected"] += 1
                     self._rejected_run += 1
@@ -242,6 +255,30 @@ class Registrar:
             dynamic = int(dyn.sum())
             keep &= ~dyn
         return scan.points[keep], int(keep.sum()), dynamic
+
+    def _fits_better(self, prepared: Any, icp: NDArray[np.float64], prediction: NDArray[np.float64]) -> bool:
+        """True when the scan, placed at the ICP pose, lies on the local map clearly better than at the
+        predicted pose: its mean squared distance to the map (each capped at 3σ of the adaptive
+        threshold, at least a voxel) is below ``1 - ekf.fit_margin`` of the prediction's. A wrong ICP
+        match, or one that slid along a corridor, fits no better than the prediction and is gated out."""
+        assert self._matcher is not None
+        margin = self.cfg.ekf.fit_margin
+        if margin >= 1.0:
+            return False
+        from scipy.spatial import cKDTree
+
+        cloud = self._matcher.map_points()
+        pts = np.asarray(prepared.source, np.float64)[:, :2]
+        if cloud.shape[0] < 3 or pts.shape[0] < 3:
+            return False
+        tree = cKDTree(cloud)
+        cap = max(3.0 * self._matcher.sigma, self.cfg.voxel_size)
+
+        def cost(pose: NDArray[np.float64]) -> float:
+            d, _ = tree.query(se2_apply(pose, pts), distance_upper_bound=cap)
+            return float(np.mean(np.minimum(d, cap) ** 2))
+
+        return cost(icp) < (1.0 - margin) * cost(prediction)
 
     def _icp(self, prepared: Any, guess: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Run ICP from ``guess``; None (counted as failed) when it cannot give a usable pose."""

@@ -15,6 +15,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 __all__ = [
+    "dilate_mask",
+    "disk_kernel",
     "is_rotation",
     "matrix_to_se2",
     "project_points",
@@ -348,3 +350,19 @@ def unproject_pixels(
                     break
                 step *= 0.5
     return np.column_stack([xn[:, 0] * z, xn[:, 1] * z, z])
+
+
+def disk_kernel(radius_cells: float) -> NDArray[np.uint8]:
+    """A round structuring element: the cells within ``radius_cells`` of the centre cell (uint8 0/1)."""
+    r = max(0, int(math.floor(radius_cells + 1e-6)))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return (xx * xx + yy * yy <= radius_cells * radius_cells + 1e-6).astype(np.uint8)
+
+
+def dilate_mask(mask: NDArray[np.bool_], radius_cells: float) -> NDArray[np.bool_]:
+    """``mask`` grown by ``radius_cells`` (a disc); a copy when the radius is 0 or the mask empty."""
+    if radius_cells <= 0 or not mask.any():
+        return np.array(mask, dtype=bool, copy=True)
+    import cv2
+
+    return np.asarray(cv2.dilate(mask.astype(np.uint8), disk_kernel(radius_cells)) > 0)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from datetime import date
@@ -26,26 +25,14 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from benchlib import machine
+
 from semmap.io.tum import read_tum
 from semmap.register.evaluate import trajectory_errors
 
 LOGS = {"intel": "intel-corrected.log.gz", "freiburg101": "freiburg-101-corrected.log.gz"}
 #: Kümmerle et al. 2009, Table I: mean translational relative error on Intel (m)
 PUBLISHED = {"intel": {"scan matching": 0.220, "RBPF (GMapping)": 0.070, "graph mapping": 0.031}}
-
-
-def _host() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]:
@@ -105,7 +92,7 @@ def main() -> int:
     if not args.data.is_dir():
         print(f"{args.data}: no CARMEN logs here", file=sys.stderr)
         return 1
-    print(f"*{date.today().isoformat()}, {_host()}*\n")
+    print(f"*{date.today().isoformat()}, {machine()}*\n")
     rows = run(args.data, args.work, args.logs, args.modes)
     print()
     print(table(rows))

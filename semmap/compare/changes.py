@@ -34,7 +34,7 @@ from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from ..geometry import se2_apply, se2_inverse, wrap_angle
+from ..geometry import dilate_mask, disk_kernel, se2_apply, se2_inverse, wrap_angle
 from ..grid import SemiStaticObject
 from ..records import GridSpec
 from ..register.metrics import align_se2
@@ -173,16 +173,8 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
                    bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN))
 
 
-def _disk(radius_cells: float) -> NDArray[np.uint8]:
-    r = max(0, int(math.floor(radius_cells + 1e-6)))
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return (xx * xx + yy * yy <= radius_cells * radius_cells + 1e-6).astype(np.uint8)
-
-
-def _dilate(mask: NDArray[np.bool_], radius_cells: float) -> NDArray[np.bool_]:
-    if radius_cells <= 0 or not mask.any():
-        return mask.copy()
-    return cv2.dilate(mask.astype(np.uint8), _disk(radius_cells)) > 0
+_disk = disk_kernel
+_dilate = dilate_mask
 
 
 @dataclass

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ..geometry import dilate_mask
 from ..io.yamlio import write_yaml
 from ..records import GridSpec
 
@@ -40,16 +40,8 @@ class MaskSettings:
     speed_margin_m: float = 0.5
 
 
-def _disk(radius_cells: float) -> NDArray[np.uint8]:
-    r = max(0, int(math.floor(radius_cells + 1e-6)))
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return (xx * xx + yy * yy <= radius_cells * radius_cells + 1e-6).astype(np.uint8)
-
-
 def _grow(mask: NDArray[np.bool_], metres: float, res: float) -> NDArray[np.bool_]:
-    if metres <= 0 or not mask.any():
-        return mask.copy()
-    return cv2.dilate(mask.astype(np.uint8), _disk(metres / res)) > 0
+    return dilate_mask(mask, metres / res)
 
 
 def keepout_mask(spec: GridSpec, footprints: list[NDArray[np.float64]], semi: NDArray[np.bool_],

@@ -178,6 +178,7 @@ def build(
         if run.stream.counts.scans == 0:
             raise BagError(f"{tinfo.bag}: no usable scans on {tinfo.topics.scan}")
         _warn_about_painting(tinfo, cfg, run)
+        _warn_about_registration(tinfo, cfg, run)
         outcome = _outcome(tinfo, cfg, class_names, run, warned.lines(), t_start)
         summary = write_map_folder(tmp, outcome)
     return BuildResult(Path(out), summary, time.perf_counter() - t_start)
@@ -425,6 +426,35 @@ def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:
                  tinfo.calibration.camera_frame)
     log.info("registration %s; segmentation backend %s; scans paired with images within %.3f s",
              cfg.registration.mode, cfg.segmentation.backend, cfg.sync.max_image_offset)
+
+
+def _warn_about_registration(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
+    """Say so when registration ran on less than it should have: scans without odometry, ICP results
+    gated out or failed, filter restarts, each above a few per cent of the scans."""
+    r = run.result.registration
+    n = max(int(r.get("scans", 0)), 1)
+    mode = cfg.registration.mode
+    missing = int(r.get("odom_missing", 0))
+    if tinfo.topics.odometry and missing > 0.02 * n:
+        what = {"fused": "registered by ICP alone", "odometry": "placed by extrapolating the last motion",
+                "icp": "unaffected (icp mode)"}[mode]
+        log.warning("%d of %d scans (%.0f %%) had no odometry on %s at their stamp (a gap longer than "
+                    "sync.max_odom_gap, %.2f s, or none at all): they were %s", missing, n, 100 * missing / n,
+                    tinfo.topics.odometry, cfg.sync.max_odom_gap, what)
+    if mode == "fused":
+        rejected, resets = int(r.get("icp_rejected", 0)), int(r.get("filter_resets", 0))
+        if rejected > 0.05 * n:
+            log.warning("%d of %d ICP results (%.0f %%) were gated out by the odometry filter: odometry and scan "
+                        "matching disagree often; walls may double (try registration.mode icp or odometry and "
+                        "compare)", rejected, n, 100 * rejected / n)
+        if resets > 0.01 * n:
+            log.warning("the odometry filter restarted %d times (%.1f %% of the scans), each a jump of the pose",
+                        resets, 100 * resets / n)
+    if mode != "odometry":
+        failed = int(r.get("icp_failed", 0))
+        if failed > 0.05 * n:
+            log.warning("ICP failed on %d of %d scans (%.0f %%): too few points in range (registration.min_points, "
+                        "max_range) or an empty local map", failed, n, 100 * failed / n)
 
 
 def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:

@@ -190,3 +190,28 @@ def test_build_reads_the_imported_tour_unchanged(tmp_path):
     rows, _ = np.nonzero(m.cleaned.occupied)
     y = m.spec.origin_y + (rows + 0.5) * m.spec.resolution
     assert np.mean(np.abs(np.abs(y) - 1.0) < 0.1) > 0.9
+
+
+def test_a_build_warns_when_scans_have_no_odometry(tmp_path):
+    # the corridor tour of the test above, with the wheels' ODOM lines gone after the fourth scan
+    steps = [(0.2, 0.0, 0.0)] * 12
+    _corrected_log(tmp_path / "c.log", steps, drift=(0.0, 0.0, 0.0))
+    a = -math.pi / 2 + np.arange(180) * math.pi / 180
+    r = np.minimum(np.where(np.abs(np.sin(a)) > 0.05, 1.0 / np.maximum(np.abs(np.sin(a)), 1e-9), 20.0), 20.0)
+    text = " ".join(f"{v:.3f}" for v in r)
+    out, scans = [], 0
+    for ln in (tmp_path / "c.log").read_text().splitlines():
+        if ln.startswith("FLASER"):
+            scans += 1
+            ln = ln.replace(_ranges(), text)
+        elif ln.startswith("ODOM") and scans > 4 and ln.split()[7] != "0":
+            continue  # only the restart lines (stamped 0) are left: no wheel motion is known
+        out.append(ln)
+    (tmp_path / "c.log").write_text("\n".join(out) + "\n")
+    assert main(["import", "carmen", str(tmp_path / "c.log"), "--out", str(tmp_path / "tour"), "-q"]) == 0
+    assert main(["build", str(tmp_path / "tour"), "--out", str(tmp_path / "map"), "-q"]) == 0
+    import json
+
+    summary = json.loads((tmp_path / "map" / "summary.json").read_text())
+    assert summary["registration"]["odom_missing"] >= 7
+    assert any("had no odometry on /odom" in w for w in summary["warnings"]), summary["warnings"]

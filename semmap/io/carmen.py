@@ -221,7 +221,9 @@ def honest_odometry(log: CarmenLog) -> tuple[NDArray[np.float64], NDArray[np.boo
     path_p: list[NDArray[np.float64]] = []
     for k in range(1, n):
         j0, j = front[k - 1].last_odom, front[k].last_odom
-        if j < 0 or j <= j0:  # no ODOM line between the two scans
+        while j > j0 and log.odom_stamps[j] <= 0:  # a restart line carries no wheel motion
+            j -= 1
+        if j < 0 or j <= j0:  # no wheel ODOM line between the two scans: the step is unknown
             out[k] = out[k - 1]
             ok[k] = False
             continue

@@ -37,7 +37,8 @@ def cell_centres_xy(spec: GridSpec, rows: NDArray[np.intp], cols: NDArray[np.int
 
 def dominant_direction(occupied: NDArray[np.bool_], spec: GridSpec) -> float:
     """The turn (radians, within ±45°) that best lines the occupied cells up with the axes: the one
-    whose x and y projections, in bins of one cell, have the largest sum of squared counts."""
+    whose x and y projections, in bins of one cell, have the largest sum of squared counts; 0 when
+    that is within 0.25° of the axes already."""
     rows, cols = np.nonzero(occupied)
     if rows.size < 10:
         return 0.0
@@ -60,7 +61,9 @@ def dominant_direction(occupied: NDArray[np.bool_], spec: GridSpec) -> float:
         grid = best + np.deg2rad(np.arange(-4, 5) * step)
         best = max(grid, key=sharpness)
     a = float(best)
-    return a - math.pi / 2 if a >= math.pi / 4 else a + math.pi / 2 if a < -math.pi / 4 else a
+    a = a - math.pi / 2 if a >= math.pi / 4 else a + math.pi / 2 if a < -math.pi / 4 else a
+    # within the search's own precision of the axes the map is straight already: no resampling for nothing
+    return 0.0 if abs(a) < math.radians(0.25) else a
 
 
 def rotated_spec(spec: GridSpec, keep: NDArray[np.bool_], T: NDArray[np.float64]) -> GridSpec:

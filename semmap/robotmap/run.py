@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
-from ..geometry import se2_apply
+from ..geometry import dilate_mask, se2_apply
 from ..grid import SemiStaticObject
 from ..mapfolder.reader import MapFolder
 from ..records import GridSpec
@@ -175,12 +175,14 @@ def export_session(m: MapFolder, out: Path, st: ExportSettings) -> ExportResult:
         counts[name] = {"occupied": int(plane.occupied.sum()), "free": int(plane.free.sum()),
                         "unknown": int(plane.unknown.sum())}
     footprints = _footprints(c.objects, T)
+    keep: NDArray[np.bool_] | None = None
+    speed: NDArray[np.uint8] | None = None
     if st.masks:
         ms = st.mask_settings
-        keep = keepout_mask(spec, footprints, masks["semi"], ms.keepout_margin_m)
+        furniture = keepout_mask(spec, footprints, masks["semi"], 0.0)
+        keep = dilate_mask(furniture, ms.keepout_margin_m / spec.resolution)
         write_layer(out / "keepout_mask.yaml", spec, MapEncoding(), keep, ~keep, np.where(keep, 1.0, 0.0).astype(
             np.float32))
-        furniture = keepout_mask(spec, footprints, masks["semi"], 0.0)
         speed = speed_mask(spec, furniture, masks["people"], ms)
         write_speed_mask(out / "speed_mask.yaml", spec, speed)
         write_filter_params(out / "costmap_filters.yaml", "keepout_mask.yaml", "speed_mask.yaml")
@@ -201,8 +203,7 @@ def export_session(m: MapFolder, out: Path, st: ExportSettings) -> ExportResult:
     from .preview import render_preview
 
     first = planes[st.layers[0]]
-    render_preview(out / "preview.png", spec, first, st.layers[0], footprints,
-                   keep if st.masks else None, speed if st.masks else None)
+    render_preview(out / "preview.png", spec, first, st.layers[0], footprints, keep, speed)
     files.append("preview.png")
     result = ExportResult(spec, T, tuple(files + ["export.json"]), counts, tuple(warnings),
                           time.perf_counter() - t0)

@@ -444,9 +444,11 @@ def _warn_about_registration(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
     if mode == "fused":
         rejected, resets = int(r.get("icp_rejected", 0)), int(r.get("filter_resets", 0))
         if rejected > 0.05 * n:
+            hint = ("set registration.ekf.fit_margin: 0 to take ICP where the scan fits the map better, or try "
+                    "registration.mode icp or odometry, and compare" if cfg.registration.ekf.fit_margin >= 1.0
+                    else "try registration.mode icp or odometry and compare")
             log.warning("%d of %d ICP results (%.0f %%) were gated out by the odometry filter: odometry and scan "
-                        "matching disagree often; walls may double (try registration.mode icp or odometry and "
-                        "compare)", rejected, n, 100 * rejected / n)
+                        "matching disagree often; walls may double (%s)", rejected, n, 100 * rejected / n, hint)
         if resets > 0.01 * n:
             log.warning("the odometry filter restarted %d times (%.1f %% of the scans), each a jump of the pose",
                         resets, 100 * resets / n)

@@ -214,18 +214,18 @@ def test_fused_recovers_from_wheel_slip():
     for u in inc:
         odom.append(se2_compose(odom[-1], u))
     truth_map = _truth_in_map(truth)
-    poses, reg = _run(RegistrationConfig(mode="fused"), truth, odom)
+    poses, reg = _run(RegistrationConfig(mode="fused", ekf=EkfConfig(fit_margin=0.0)), truth, odom)
     err = np.hypot(*(poses[:, :2] - truth_map[:, :2]).T)
-    # ICP disagrees with the slipped prediction beyond the gate, and the scan fits the map better at
-    # ICP's pose: ICP is taken at once, with no scan held at the wrong pose and no jump later
+    # with fit_margin 0: ICP disagrees with the slipped prediction beyond the gate, and the scan fits the
+    # map better at ICP's pose: ICP is taken at once, with no scan held at the wrong pose and no jump later
     assert reg.stats["icp_rejected"] == 0 and reg.stats["icp_over_odometry"] >= 1 and reg.stats["filter_resets"] == 0
     assert err.max() < 0.02
-    # gating on odometry alone (fit_margin 1): gated out 5 times (the prediction stands, the scans stay
-    # out of the map), then the filter restarts from ICP
-    gated, reg_g = _run(RegistrationConfig(mode="fused", ekf=EkfConfig(fit_margin=1.0)), truth, odom)
+    # the default, gating on odometry alone (fit_margin 1): gated out 5 times (the prediction stands, the
+    # scans stay out of the map), then the filter restarts from ICP
+    gated, reg_g = _run(RegistrationConfig(mode="fused"), truth, odom)
     assert reg_g.stats["icp_rejected"] == 5 and reg_g.stats["filter_resets"] == 1
     assert np.hypot(*(gated[:, :2] - truth_map[:, :2]).T)[17:].max() < 0.02
-    stuck, _ = _run(RegistrationConfig(mode="fused", ekf=EkfConfig(reset_after=0, fit_margin=1.0)), truth, odom)
+    stuck, _ = _run(RegistrationConfig(mode="fused", ekf=EkfConfig(reset_after=0)), truth, odom)
     assert np.hypot(*(stuck[-1, :2] - truth_map[-1, :2])) > 0.15  # never trusting ICP again: stays 20 cm off
 
 

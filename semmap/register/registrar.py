@@ -15,14 +15,15 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
 ``fused`` (default)
     An SE(2) EKF predicts with the odometry increment between consecutive scans;
     ICP starts from that prediction; its result is a pose measurement, gated by
-    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). A result beyond the
-    gate is still taken (the filter restarts from it) when the scan lies on the
-    local map better at ICP's pose than at the prediction (``ekf.fit_margin``):
+    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). With ``ekf.fit_margin``
+    below 1, a result beyond the gate is still taken (the filter restarts from it)
+    when the scan lies on the local map better at ICP's pose than at the prediction:
     real wheel odometry drifts in heading and scale more than any noise model
-    allows, and then the gate would reject good matches. Rejected or failed ICP
-    leaves the prediction. The fused pose goes into the local map and is the
-    base of the next guess; a scan whose ICP result was rejected is not inserted
-    (it contradicts the prediction, so one of them is wrong). After
+    allows, and then the gate rejects good matches (off by default: see
+    docs/registration.md). Rejected or failed ICP leaves the prediction. The fused
+    pose goes into the local map and is the base of the next guess; a scan whose ICP
+    result was rejected is not inserted (it contradicts the prediction, so one of them
+    is wrong). After
     ``ekf.reset_after`` rejections in a row ICP is trusted again: the filter
     restarts from the ICP pose (wheel slip, a kidnapped robot). Without odometry
     at this scan or the previous one, the step runs as in ``icp`` mode and the

@@ -100,8 +100,8 @@ class Registrar:
         self._counts: dict[str, int] = {
             "scans": 0,  # scans registered
             "icp_accepted": 0,  # ICP results used (icp mode: every successful ICP)
+            "icp_over_odometry": 0,  # fused: of the results used, those beyond the gate (ekf.fit_margin < 1)
             "icp_rejected": 0,  # ICP results gated out by the EKF (fused)
-            "icp_over_odometry": 0,  # fused: of those, beyond the gate but taken: the scan fits the map better there
             "icp_failed": 0,  # ICP not run or unusable: too few points, empty map, non-finite result
             "filter_resets": 0,  # fused: the EKF restarted from ICP after ekf.reset_after rejections in a row
             "odom_missing": 0,  # scans without odometry (fused: ran as icp; odometry: extrapolated)
@@ -209,8 +209,8 @@ class Registrar:
                     self._matcher.update_threshold(guess, result)
                     self._rejected_run = 0
                 elif self._fits_better(prepared, result, self._ekf.pose):
-                    # odometry and ICP disagree, and ICP's pose explains the scan clearly better than the
-                    # prediction does: the odometry is off (a systematic heading error, a slip), not ICP
+                    # odometry and ICP disagree, and ICP's pose explains the scan better than the prediction
+                    # does (by more than ekf.fit_margin): the odometry is off (a heading drift, a slip), not ICP
                     self._ekf.reset(result, self._ekf.R)
                     self._counts["icp_accepted"] += 1
                     self._counts["icp_over_odometry"] += 1
@@ -258,7 +258,7 @@ class Registrar:
         return scan.points[keep], int(keep.sum()), dynamic
 
     def _fits_better(self, prepared: Any, icp: NDArray[np.float64], prediction: NDArray[np.float64]) -> bool:
-        """True when the scan, placed at the ICP pose, lies on the local map clearly better than at the
+        """True when the scan, placed at the ICP pose, lies on the local map better than at the
         predicted pose: its mean squared distance to the map (each capped at 3σ of the adaptive
         threshold, at least a voxel) is below ``1 - ekf.fit_margin`` of the prediction's. A wrong ICP
         match, or one that slid along a corridor, fits no better than the prediction and is gated out."""

@@ -211,7 +211,9 @@ class TopicsConfig(_Model):
     image: str | None = Field(None, description="RGB camera: sensor_msgs/Image or CompressedImage")
     labels: str | None = Field(None, description="label images (mono8/mono16) for the 'topic' backend")
     camera_info: str | None = None
-    odometry: str | None = Field(None, description="nav_msgs/Odometry; 'none' to build without odometry")
+    odometry: str | None = Field(None, description="nav_msgs/Odometry topic; 'tf' (or the tf topic's name) to take "
+                                 "odometry from the odom -> base transform on topics.tf; 'none' to build without "
+                                 "odometry; null: the only Odometry topic, else /tf when it carries one")
     tf: str = "/tf"
     tf_static: str = "/tf_static"
 
@@ -219,7 +221,11 @@ class TopicsConfig(_Model):
 class FramesConfig(_Model):
     """Frame names; ``null`` means: take them from the data."""
 
-    base: str | None = Field(None, description="robot base frame (default: the odometry child frame)")
+    base: str | None = Field(None, description="robot base frame (default: the odometry's child frame, or the child "
+                                               "of the odometry transform on /tf)")
+    odom: str | None = Field(None, description="odometry frame of odometry taken from /tf (default: the nearest "
+                                               "parent of the base frame on /tf named like 'odom', else one not "
+                                               "named like 'map' or 'world')")
     lidar: str | None = Field(None, description="LiDAR frame (default: the scans' frame_id)")
     base_T_lidar: Mount | None = Field(None, description="T_base_lidar when the bag has no /tf_static for it")
 
@@ -231,6 +237,9 @@ class SyncConfig(_Model):
                                                                      "this, s")
     motion_compensation: bool = Field(True, description="move the scan to the image time through odometry")
     deskew: bool = Field(True, description="undo the robot's motion during a scan sweep through odometry")
+    odometry_offset: float = Field(0.0, ge=-10, le=10, description="seconds added to the odometry's stamps to "
+                                                                   "put them on the scans' clock (a driver that "
+                                                                   "stamps late or early)")
     max_odom_gap: float = Field(0.5, gt=0, le=3600, description="odometry gaps longer than this are not "
                                                                  "interpolated, s")
     # buffering of the scan stream (semmap.paint.stream): memory stays bounded however long the tour
@@ -489,7 +498,21 @@ class PaintConfig(_Model):
     below_range_min: Literal["invalid", "no_return"] = Field(
         "invalid", description="readings below range_min (0 included): 'invalid' clears nothing (REP-117); "
                                "'no_return' clears free space to the range limit, for drivers such as "
-                               "Hokuyo URG that report 'nothing seen' as small error codes")
+                               "Hokuyo URG that report 'nothing seen' as small error codes; beams masked as "
+                               "blocked (blocked_share) clear nothing either way")
+    nan_readings: Literal["invalid", "no_return"] = Field(
+        "invalid", description="NaN readings: 'invalid' clears nothing (REP-117); 'no_return' clears free space "
+                               "to the range limit, for drivers that report 'nothing within range' as NaN; beams "
+                               "masked as blocked (blocked_share) clear nothing either way")
+    blocked_share: float = Field(
+        0.01, ge=0, lt=1, description="a beam (an index in the scan) that has given a real return (or +inf) in at "
+                                      "most this share of the scans of its beam layout so far is masked as "
+                                      "blocked: its readings below range_min and NaN readings clear nothing, "
+                                      "whatever below_range_min and nan_readings say (a sector blocked by the "
+                                      "robot's body; in the first scans, every beam that has not returned yet)")
+    blocked_min_scans: int = Field(
+        50, ge=1, description="masked beams are counted and reported as blocked once their beam layout has been "
+                              "seen in this many scans (before that, a beam may just not have returned yet)")
     occlusion: OcclusionConfig = OcclusionConfig()
 
     @model_validator(mode="before")
@@ -519,6 +542,8 @@ class EkfConfig(_Model):
 
     odom_trans_noise: float = Field(0.02, ge=0, le=10, description="std of translation per metre driven (fraction)")
     odom_rot_noise: float = Field(0.02, ge=0, le=10, description="std of rotation per radian turned (fraction)")
+    odom_trans_per_rad: float = Field(0.01, ge=0, le=10, description="std of translation per radian turned, m/rad "
+                                                                      "(a turn on the spot shifts the base)")
     odom_rot_per_m: float = Field(0.005, ge=0, le=10, description="std of heading change per metre driven, rad/m")
     # The random-walk terms are deliberately larger than a wheel encoder's white noise: they also
     # stand for odometry bias the filter does not model. Smaller values let the bias leak into the
@@ -526,9 +551,40 @@ class EkfConfig(_Model):
     odom_trans_rw: float = Field(0.01, ge=0, le=10, description="translation random walk, m per sqrt(m driven)")
     odom_rot_rw: float = Field(0.01, ge=0, le=10, description="heading random walk, rad per sqrt(m driven + rad "
                                                                "turned)")
+    odom_heading_drift_std: float = Field(0.05, ge=0, le=10, description="prior std of the odometry's systematic "
+                                                                          "heading drift, rad per metre driven (the "
+                                                                          "filter learns it from ICP; 0: not modelled)")
+    odom_turn_scale_std: float = Field(0.05, ge=0, le=10, description="prior std of the odometry's scale error on "
+                                                                       "the angle turned (learnt; 0: not modelled)")
+    odom_drive_scale_std: float = Field(0.05, ge=0, le=10, description="prior std of the odometry's scale error on "
+                                                                        "the distance driven (learnt; 0: not "
+                                                                        "modelled)")
+    odom_error_drift: float = Field(0.05, ge=0, le=10, description="the systematic errors drift (a random walk) by "
+                                                                    "this share of their prior std per sqrt(m "
+                                                                    "driven + rad turned)")
     odom_min_noise: float = Field(1e-4, ge=0, le=10, description="floor on per-step noise std (m and rad)")
-    icp_xy_std: float = Field(0.005, gt=0, le=100, description="ICP position measurement std, m")
-    icp_yaw_std: float = Field(0.001, gt=0, le=10, description="ICP heading measurement std, rad")
+    icp_xy_std: float = Field(0.005, gt=0, le=100, description="ICP position measurement std, m (with "
+                                                                "icp_point_std: its floor)")
+    icp_yaw_std: float = Field(0.001, gt=0, le=10, description="ICP heading measurement std, rad (with "
+                                                                "icp_point_std: its floor)")
+    icp_point_std: float = Field(0.05, ge=0, le=10, description="residual std of one matched point, m: ICP's "
+                                                                 "covariance is this² times the inverse of the "
+                                                                 "match's point-to-line Hessian, so a corridor "
+                                                                 "leaves the position along it to odometry; 0: "
+                                                                 "the fixed icp_xy_std and icp_yaw_std")
+    degenerate_ratio: float = Field(0.05, ge=0, le=1, description="a match is degenerate (a corridor, one wall) "
+                                                                   "when its Hessian's weakest direction of "
+                                                                   "translation has less than this share of the "
+                                                                   "strongest's information")
+    adapt_window: int = Field(15, ge=0, le=10000, description="the odometry noise is scaled up to what its "
+                                                              "disagreement with ICP over the last this many "
+                                                              "stretches of adapt_baseline shows (their median; "
+                                                              "wheels err more than any fixed model allows); 0: "
+                                                              "the configured noise as is")
+    adapt_baseline: float = Field(0.5, gt=0, le=1000, description="the stretch (m driven + rad turned) over which "
+                                                                  "odometry and ICP are compared")
+    adapt_max_scale: float = Field(30.0, ge=1, le=1000, description="the most the odometry noise std is scaled "
+                                                                     "up by")
     gate_chi2: float = Field(16.27, gt=0, description="reject ICP poses beyond this Mahalanobis² (3 dof, 99.9 %)")
     reset_after: int = Field(5, ge=0, description="after this many ICP results gated out in a row, trust ICP: "
                                                   "the filter restarts from its pose (odometry slipped); 0: never")

@@ -39,6 +39,7 @@ from .io.topics import IMAGE_T
 from .io.tour import Tour
 from .mapfolder.summary import (
     BuildSummary,
+    ConsistencySummary,
     CountsSummary,
     MapSummary,
     MessagesSummary,
@@ -306,6 +307,13 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
     for o in cleaned.objects:
         by_class[o.class_name] = by_class.get(o.class_name, 0) + 1
     spec = cleaned.spec
+    consistency = None
+    if run.result.endpoints is not None:
+        from .grid.consistency import consistency_score, place
+
+        xy, scan_of = run.result.endpoints
+        score = consistency_score(place(xy, scan_of, poses), cleaned.occupied, spec)
+        consistency = ConsistencySummary(**score.as_dict())
     t = run.timers
     loop = run.loop_s
     summary = BuildSummary(
@@ -318,7 +326,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             scenario=tinfo.manifest.get("scenario"),
             duration_s=round(span_s, 3),
             topics=TourTopics(scan=tinfo.topics.scan, image=tinfo.topics.image,
-                              image_kind=tinfo.topics.image_kind, odometry=tinfo.topics.odometry,
+                              image_kind=tinfo.topics.image_kind, odometry=tinfo.topics.odometry_source,
                               tf_static=tinfo.topics.tf_static),
             frames=TourFrames(base=tinfo.base_frame, lidar=tinfo.lidar_frame, map="map"),
             T_base_lidar=np.round(tinfo.T_base_lidar, 9).tolist(),
@@ -335,6 +343,12 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             backend=cfg.segmentation.backend if class_names else None,
             scans_painted=ps.painted,
             readings_below_range_min_fraction=round(ps.below_range_min / max(ps.beams, 1), 4),
+            readings_below_range_min_unblocked_fraction=round(ps.below_range_min_unblocked / max(ps.beams, 1), 4),
+            readings_nan_fraction=round(ps.nan_readings / max(ps.beams, 1), 4),
+            readings_nan_unblocked_fraction=round(ps.nan_unblocked / max(ps.beams, 1), 4),
+            blocked_beams=ps.blocked_beams,
+            blocked_sectors=[{"first_deg": round(float(np.degrees(a)), 2), "last_deg": round(float(np.degrees(b)), 2),
+                              "beams": k} for bl in ps.blocked.values() for a, b, k in bl.sectors],
             points_in_view_fraction=round(ps.points_in_view / max(ps.points_total, 1), 4),
             occlusion_filter=OcclusionSummary(
                 on=cfg.paint.occlusion.filter,
@@ -379,6 +393,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
                              **({"images": run.image_counts["peak_rss_mb"]}
                                 if "peak_rss_mb" in run.image_counts else {})},
         files=[],
+        consistency=consistency,
     )
     return BuildOutcome(config=cfg, class_names=class_names, layers=layers, cleaned=cleaned, stamps_ns=stamps,
                         poses=poses, odometry=odom, summary=summary, started=t_start)
@@ -398,12 +413,14 @@ def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:
             reg = reg.model_copy(update={"mode": "icp"})
     topics = cfg.topics.model_copy(update={
         "scan": tinfo.topics.scan,
-        "odometry": tinfo.topics.odometry or "none",
+        "odometry": ("tf" if tinfo.topics.odometry_tf is not None else tinfo.topics.odometry) or "none",
         "camera_info": tinfo.topics.camera_info,
         **({"labels": tinfo.topics.image} if tinfo.topics.image_kind == "labels" else {}),
         **({"image": tinfo.topics.image} if tinfo.topics.image_kind == "rgb" else {}),
     })
-    frames = cfg.frames.model_copy(update={"base": tinfo.base_frame, "lidar": tinfo.lidar_frame})
+    frames = cfg.frames.model_copy(update={"base": tinfo.base_frame, "lidar": tinfo.lidar_frame,
+                                           **({"odom": tinfo.topics.odometry_tf.odom_frame}
+                                              if tinfo.topics.odometry_tf is not None else {})})
     update: dict[str, Any] = {"topics": topics, "frames": frames, "registration": reg}
     if tinfo.calibration_path is not None:
         update["calibration"] = tinfo.calibration_path.resolve()
@@ -414,7 +431,7 @@ def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:
     """``-v``: what was found in the data, and where it came from."""
     t = tinfo.topics
     log.info("tour %s: scans %s (frame %s), odometry %s, %s %s, camera_info %s", tinfo.bag, t.scan,
-             tinfo.lidar_frame, t.odometry or "none", "label images" if t.image_kind == "labels" else "images",
+             tinfo.lidar_frame, t.odometry_source or "none", "label images" if t.image_kind == "labels" else "images",
              t.image or "none", t.camera_info or "none")
     xyz = np.round(tinfo.T_base_lidar[:3, 3], 3).tolist()
     yaw = float(np.degrees(np.arctan2(tinfo.T_base_lidar[1, 0], tinfo.T_base_lidar[0, 0])))
@@ -440,7 +457,7 @@ def _warn_about_registration(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
                 "icp": "unaffected (icp mode)"}[mode]
         log.warning("%d of %d scans (%.0f %%) had no odometry on %s at their stamp (a gap longer than "
                     "sync.max_odom_gap, %.2f s, or none at all): they were %s", missing, n, 100 * missing / n,
-                    tinfo.topics.odometry, cfg.sync.max_odom_gap, what)
+                    tinfo.topics.odometry_source, cfg.sync.max_odom_gap, what)
     if mode == "fused":
         rejected, resets = int(r.get("icp_rejected", 0)), int(r.get("filter_resets", 0))
         if rejected > 0.05 * n:
@@ -460,12 +477,41 @@ def _warn_about_registration(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
 
 
 def _warn_about_painting(tinfo: Tour, cfg: BuildConfig, run: _Run) -> None:
-    """Say so when the camera labelled (almost) nothing, and why."""
+    """Report the LiDAR's blocked beams, and readings below range_min or NaN that clear no free space (or
+    clear it where they should not); say so when the camera labelled (almost) nothing, and why."""
     ps = run.painter.stats
-    if cfg.paint.below_range_min == "invalid" and ps.below_range_min > 0.02 * max(ps.beams, 1):
-        log.warning("%.0f %% of the readings on %s are below range_min and clear no free space; if the "
-                    "driver reports 'nothing seen' this way (Hokuyo URG does), set "
-                    "paint.below_range_min: no_return", 100 * ps.below_range_min / ps.beams, tinfo.topics.scan)
+    scan_topic, beams = tinfo.topics.scan, max(ps.beams, 1)
+    for blocked in ps.blocked.values():  # per beam layout; angles as the scans give them
+        if blocked.count:
+            sectors = ", ".join(f"{np.degrees(a):.1f}° to {np.degrees(b):.1f}° ({k})"
+                                for a, b, k in blocked.sectors[:4])
+            more = f" and {len(blocked.sectors) - 4} more sectors" if len(blocked.sectors) > 4 else ""
+            log.warning("beams %s%s on %s read below range_min or NaN in (nearly) every one of %d scans: masked "
+                        "as blocked, they clear no free space", sectors, more, scan_topic, blocked.scans)
+    # the advice counts only the beams that see out otherwise: a blocked sector would clear through walls
+    if cfg.paint.below_range_min == "invalid" and ps.below_range_min_unblocked > 0.02 * beams:
+        log.warning("%.0f %% of the readings on %s are below range_min on beams not blocked, and clear no free "
+                    "space; if the driver reports 'nothing seen' this way (Hokuyo URG does), set "
+                    "paint.below_range_min: no_return", 100 * ps.below_range_min_unblocked / beams, scan_topic)
+    if ps.nan_unblocked > 0.03 * beams:
+        # where nothing is within range the returns beside the NaN readings are far; beside dropouts (glass,
+        # black surfaces) they are at any range
+        far = ps.returns_beside_nan_far / max(ps.returns_beside_nan, 1)
+        share = 100 * ps.nan_unblocked / beams
+        if cfg.paint.nan_readings == "invalid" and far >= 0.5:
+            log.warning("%.0f %% of the readings on %s are NaN on beams not blocked, and clear no free space; "
+                        "%.0f %% of the returns beside them are beyond half the range limit, as where nothing is "
+                        "within range: if the driver reports that as NaN, set paint.nan_readings: no_return", share,
+                        scan_topic, 100 * far)
+        elif cfg.paint.nan_readings == "invalid":
+            log.warning("%.0f %% of the readings on %s are NaN on beams not blocked, and clear no free space "
+                        "(the returns beside them are mostly near, so they look like dropouts rather than "
+                        "'nothing within range')", share, scan_topic)
+        elif far < 0.5:
+            log.warning("%.0f %% of the readings on %s are NaN, read as 'nothing within range' "
+                        "(paint.nan_readings: no_return), but only %.0f %% of the returns beside them are beyond "
+                        "half the range limit: if they are dropouts, they clear free space through walls; "
+                        "consider paint.nan_readings: invalid", share, scan_topic, 100 * far)
     if tinfo.topics.image is None:
         return
     n = run.stream.counts.scans

@@ -564,6 +564,9 @@ class MapperResult:
     fuse_busy_s: float
     peak_rss_mb: dict[str, float] = field(default_factory=dict)  # per worker process
     cpu_s: dict[str, float] = field(default_factory=dict)  # CPU time of each worker process after start-up
+    #: a sample of the returns, in their scans' base frames (M, 2), and their scan numbers (M,)
+    #: (:class:`~semmap.grid.consistency.EndpointSample`)
+    endpoints: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
 
 
 class Mapper(Protocol):
@@ -587,10 +590,12 @@ class InProcessMapper:
 
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...]) -> None:
         from .grid import SemanticGrid
+        from .grid.consistency import EndpointSample
         from .register import Registrar
 
         self._registrar = Registrar(reg_cfg)
         self._grid = SemanticGrid(grid_cfg, class_names)
+        self._sample = EndpointSample()
         self._poses = array("d")
         self._busy = [0.0, 0.0]
 
@@ -602,13 +607,14 @@ class InProcessMapper:
         pose = self._registrar.register(painted, odom_pose)
         t1 = time.perf_counter()
         self._grid.integrate(pose, painted)
+        self._sample.add(len(self._poses) // 3, painted)
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
         self._poses.extend(pose.tolist())
 
     def finish(self) -> MapperResult:
         return MapperResult(_pose_array(self._poses), self._grid.layers(), self._registrar.stats, self._busy[0],
-                            self._busy[1])
+                            self._busy[1], endpoints=self._sample.base_points)
 
     def close(self) -> None:
         pass
@@ -644,18 +650,24 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     with contextlib.suppress(OSError):
         os.nice(5)
     from .grid import SemanticGrid
+    from .grid.consistency import EndpointSample
 
     grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
+    sample = EndpointSample()
     out.send(("ready",))
     cpu0 = time.process_time()
     busy = 0.0
+    n = 0
     while (batch := inbox.recv()) is not None:
         t0 = time.perf_counter()
         for pose, painted in batch:
             grid.integrate(pose, painted)
+            sample.add(n, painted)
+            n += 1
         busy += time.perf_counter() - t0
     cpu = time.process_time() - cpu0
     _send_large(out, grid.layers())
+    out.send(("endpoints", *sample.base_points))
     out.send(("fused", busy, peak_rss_mb(), cpu))  # the peak includes taking the layers out
 
 
@@ -716,10 +728,11 @@ class MapperWorkers:
         self._send(None)
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses", last=True)
         _, layers = self._expect(self._fuse, "large")
+        _, xy, scan_of = self._expect(self._fuse, "endpoints")
         _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused", last=True)
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
-                            {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)})
+                            {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of))
 
     def _expect(self, w: _Worker, tag: str, last: bool = False) -> Any:
         msg = self._group.recv(w)

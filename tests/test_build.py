@@ -173,7 +173,9 @@ def test_load_map_reads_a_version_1_folder(demo_map, tmp_path):
     assert m.summary.counts.images == v1["counts"]["frames"] == 140
     assert m.summary.counts.bad_images == v1["counts"]["bad_frames"] == 0
     assert m.summary.tour.topics.image == "/camera/labels" and m.summary.tour.topics.image_kind == "labels"
-    assert m.summary.counts.scans == demo_map.summary.counts.scans and m.summary.map == demo_map.summary.map
+    # the numbers are the file's (the demo's map has changed since 9a59013 with registration and cleaning)
+    assert m.summary.counts.scans == v1["counts"]["scans"] == demo_map.summary.counts.scans
+    assert m.summary.map.model_dump(mode="json") == v1["map"]
     assert json.loads(demo_map.summary.to_json())["counts"]["images"] == 140  # today's folders say "images"
 
 

@@ -57,7 +57,7 @@ def _build(args: argparse.Namespace, tour: Path):
 
 
 def _print_summary(result) -> None:
-    from ..mapfolder.report import registration_line
+    from ..mapfolder.report import consistency_line, registration_line
 
     s = result.summary.model_dump(mode="json")
     m, th = s["map"], s["throughput"]
@@ -68,6 +68,8 @@ def _print_summary(result) -> None:
               if occ.get("on") and s["painting"]["scans_painted"] else "")
     out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image{hidden})")
     out.print(f"  poses      {registration_line(s['registration'])}")
+    if s.get("consistency"):
+        out.print(f"  agreement  {consistency_line(s['consistency'])}")
     out.print(f"  map        {m['size_m'][0]} m × {m['size_m'][1]} m at {m['resolution']} m: "
               f"{m['occupied_cells']} occupied, {m['semi_static_cells']} semi-static, "
               f"{m['dynamic_cells_removed']} dynamic removed, {m['semi_static_objects']} movable objects")

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from ..errors import BagError
 from ..geometry import quaternion_to_yaw, se3_from_translation_quaternion
 from ..records import CameraIntrinsics, Image, Scan
-from .topics import COMPRESSED_T, IMAGE_T, INFO_T, ODOM_T, SCAN_T, TF_T
+from .topics import COMPRESSED_T, IMAGE_T, INFO_T, ODOM_T, SCAN_T, TF_TYPES
 
 __all__ = [
     "LABEL_ENCODINGS",
@@ -188,7 +188,7 @@ def record_from_msg(msgtype: str, msg: Any, topic: str = "") -> Any:
         return decode_image(msg, msgtype, topic)
     if msgtype == ODOM_T:
         return odometry_from_msg(msg, topic)
-    if msgtype == TF_T:
+    if msgtype in TF_TYPES:  # tf2's, or ROS1's older tf/tfMessage
         return transforms_from_msg(msg, topic)
     if msgtype == INFO_T:
         return camera_info_from_msg(msg)
@@ -217,7 +217,8 @@ def odometry_from_msg(msg: Any, topic: str = "") -> tuple[int, str, str, NDArray
 
 
 def transforms_from_msg(msg: Any, topic: str = "") -> list[tuple[int, str, str, NDArray[np.float64]]]:
-    """(stamp, parent, child, T_parent_child) for each transform of a ``tf2_msgs/TFMessage``.
+    """(stamp, parent, child, T_parent_child) for each transform of a ``tf2_msgs/TFMessage`` (or of the
+    ``tf/tfMessage`` of older ROS1 bags, which has the same fields).
 
     A transform with a translation that is not finite or farther than :data:`MAX_COORD_M`, or a
     rotation quaternion that is not finite or has (nearly) zero length, is damaged: it is left out,

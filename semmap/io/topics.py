@@ -9,6 +9,10 @@ and otherwise the error lists the candidates and names the setting that chooses 
 Image topics are told apart by name: one named like a label image (:data:`LABEL_HINTS`) carries
 label images, one named like a depth image (:data:`NOT_CAMERA_HINTS`) is neither a camera picture
 nor a label image, and any other is the camera's pictures.
+
+Odometry comes from a ``nav_msgs/Odometry`` topic, or from the ``odom → base`` transform on ``/tf``
+(``topics.odometry: tf``); which transform carries it is found by :func:`semmap.io.tour.open_tour`
+(:func:`semmap.io.tf.find_tf_odometry`), which also takes ``/tf`` when the bag has no Odometry topic.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from pathlib import Path
 from typing import Any, Literal, Protocol
 
 from ..errors import BagError
+from .tf import TfOdometry
 
 __all__ = [
     "COMPRESSED_T",
@@ -30,10 +35,12 @@ __all__ = [
     "ODOM_T",
     "SCAN_T",
     "TF_T",
+    "TF_TYPES",
     "TRUTH_HINTS",
     "TopicSettings",
     "Topics",
     "pick_topics",
+    "wants_tf_odometry",
 ]
 
 SCAN_T = "sensor_msgs/msg/LaserScan"
@@ -42,6 +49,8 @@ COMPRESSED_T = "sensor_msgs/msg/CompressedImage"
 INFO_T = "sensor_msgs/msg/CameraInfo"
 ODOM_T = "nav_msgs/msg/Odometry"
 TF_T = "tf2_msgs/msg/TFMessage"
+#: the transform message types: tf2's, and the ``tf/tfMessage`` of ROS1 bags recorded before tf2
+TF_TYPES = (TF_T, "tf/msg/tfMessage")
 IMAGE_TYPES = (IMAGE_T, COMPRESSED_T)
 
 #: an image topic whose name holds one of these carries label images (see the conventions, "Label images")
@@ -80,9 +89,21 @@ class Topics:
     scan: str  # "" only when the scan topic was not asked for
     image: str | None  # the image stream the segmenter consumes (labels or RGB)
     image_kind: str  # "labels" | "rgb" | "none"
-    odometry: str | None
+    odometry: str | None  # the Odometry topic, or the /tf topic when odometry comes from /tf
     tf_static: str | None
     camera_info: str | None
+    #: odometry from /tf: the transform that carries it (set by :func:`semmap.io.tour.open_tour`)
+    odometry_tf: TfOdometry | None = None
+
+    @property
+    def odometry_source(self) -> str | None:
+        """The odometry as logs and the summary name it: the topic, or ``/tf (odom -> base_footprint)``."""
+        return self.odometry_tf.label if self.odometry_tf is not None else self.odometry
+
+
+def wants_tf_odometry(setting: str | None, tf_topic: str) -> bool:
+    """Whether ``topics.odometry`` asks for odometry from /tf: ``tf`` or the tf topic's own name."""
+    return setting is not None and (setting.lower() == "tf" or setting == tf_topic)
 
 
 def _named(topic: str, hints: tuple[str, ...]) -> bool:
@@ -143,8 +164,12 @@ def pick_topics(types: Mapping[str, str], settings: TopicSettings, where: str | 
         scan = _pick("scan", want("scan"), of(SCAN_T), types, where, "scan" in required, option("scan"), (SCAN_T,))
     if "odometry" in kinds:
         odoms = [k for k in of(ODOM_T) if not _named(k, TRUTH_HINTS)]
-        odometry = _pick("odometry", want("odometry"), odoms, types, where, "odometry" in required,
-                         option("odometry"), (ODOM_T,))
+        if wants_tf_odometry(want("odometry"), settings.tf):  # the frames are found by open_tour
+            odometry = _pick("the odometry transforms, topics.odometry: tf", settings.tf, [], types, where, True,
+                             option("odometry"), TF_TYPES)
+        else:
+            odometry = _pick("odometry", want("odometry"), odoms, types, where, "odometry" in required,
+                             option("odometry"), (ODOM_T,))
     if "image" in kinds:
         images = [k for k in of(*IMAGE_TYPES) if not _named(k, NOT_CAMERA_HINTS)]
         name = "labels" if consumes == "labels" else "image"

@@ -4,12 +4,15 @@ A tour is a bag (ROS1 ``.bag`` or ROS2 folder), or a folder holding one (such as
 ``semmap simulate`` writes, whose ``tour.yaml`` names its topics). Topic names come
 from the config; missing ones are detected from message types when the choice is
 unambiguous, and an ambiguous or missing topic is an error that lists the candidates.
+Odometry comes from the Odometry topic, or from the ``odom → base`` transform on ``/tf``
+(``topics.odometry: tf``, or when the bag has no Odometry topic; see :func:`~semmap.io.tf.find_tf_odometry`).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -24,8 +27,8 @@ from ..records import Calibration
 from .bag import OpenBag, read_bag, resolve_bag_path
 from .calibration import read_calibration
 from .messages import camera_info_from_msg, odometry_from_msg, scan_from_msg, transforms_from_msg
-from .tf import TfTree
-from .topics import Topics, pick_topics
+from .tf import TfOdometry, TfTree, find_tf_odometry
+from .topics import TF_TYPES, Topics, pick_topics
 
 __all__ = [
     "Topics",
@@ -167,26 +170,35 @@ def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], conf
     lidar_frame = config.frames.lidar or scan0.frame_id
     if not lidar_frame:
         raise BagError(f"{bag}: scans on {topics.scan} have an empty frame_id; set frames.lidar")
-    base_frame = config.frames.base
-    if base_frame is None and topics.odometry:
-        base_frame = odometry_from_msg(src.first(topics.odometry), topics.odometry)[2]
-    base_frame = base_frame or "base_link"
 
     tree: TfTree | None = None
+    moving: dict[str, str] = {}  # the transforms seen on /tf: child -> parent
 
-    def tf_tree() -> TfTree:
-        """/tf_static, and the first messages of /tf, read once when a transform is needed."""
+    def tf_tree(keep_reading: Callable[[TfTree, int], bool] | None = None) -> TfTree:
+        """/tf_static, and the first messages of /tf, read once when a transform is needed.
+        ``keep_reading(tree, bag time)``: whether to read /tf on past its first messages."""
         nonlocal tree
         if tree is None:
             tree = TfTree()
             for tf_topic in [x for x in (topics.tf_static, config.topics.tf) if x and x in types]:
-                for n, (_, _, msg) in enumerate(src.messages([tf_topic]), start=1):
+                for n, (_, t_bag, msg) in enumerate(src.messages([tf_topic]), start=1):
                     for _, parent, child, mat in transforms_from_msg(msg, tf_topic):
-                        if tf_topic == topics.tf_static or child not in tree:
+                        if tf_topic == topics.tf_static or tree.parent(child) is None:
                             tree.add(parent, child, mat)
-                    if tf_topic != topics.tf_static and n > 200:  # /tf: a first look is enough
+                        if tf_topic != topics.tf_static:
+                            moving.setdefault(child, parent)
+                    if (tf_topic != topics.tf_static and n > 200  # /tf: a first look is enough
+                            and (keep_reading is None or not keep_reading(tree, t_bag))):
                         break
         return tree
+
+    topics = _odometry_from_tf(src, config, topics, types, lidar_frame, tf_tree, moving)
+    base_frame = config.frames.base
+    if topics.odometry_tf is not None:
+        base_frame = topics.odometry_tf.base_frame
+    elif base_frame is None and topics.odometry:
+        base_frame = odometry_from_msg(src.first(topics.odometry), topics.odometry)[2]
+    base_frame = base_frame or "base_link"
 
     # T_base_lidar: the config, else /tf_static (any chain of frames)
     if config.frames.base_T_lidar is not None:
@@ -232,6 +244,45 @@ def _open_tour(src: OpenBag, folder: Path | None, manifest: dict[str, Any], conf
             calib, calib_source = _calibration_from_bag(src, topics, lidar_frame, tf_tree)
     return Tour(bag, folder, manifest, config, topics, types, lidar_frame, base_frame, t_base_lidar, calib, calib_path,
                 t_source, calib_source)
+
+
+#: odometry from /tf is looked for up to this long (bag time) after the first scan, s
+_TF_ODOMETRY_SEARCH_S = 10.0
+
+
+def _odometry_from_tf(src: OpenBag, config: BuildConfig, topics: Topics, types: dict[str, str], lidar_frame: str,
+                      tf_tree: Callable[[Callable[[TfTree, int], bool] | None], TfTree],
+                      moving: dict[str, str]) -> Topics:
+    """The topics with the odometry taken from /tf where the config asks for it (``topics.odometry: tf``),
+    or leaves it open (null) and the bag has no Odometry topic but /tf carries one
+    (:func:`~semmap.io.tf.find_tf_odometry`)."""
+    tf_topic = config.topics.tf
+    asked = topics.odometry is not None and topics.odometry == tf_topic  # pick_topics: topics.odometry: tf
+    if not asked and not (topics.odometry is None and config.topics.odometry is None
+                          and types.get(tf_topic) in TF_TYPES):
+        return topics
+
+    def find(tree: TfTree) -> TfOdometry | None:
+        return find_tf_odometry(tree, moving, config.frames.base or lidar_frame, tf_topic,
+                                base=config.frames.base, odom=config.frames.odom)
+
+    # odometry often starts after the recording (map -> odom alone at first): read /tf on until it is
+    # found, or until _TF_ODOMETRY_SEARCH_S after the first scan
+    until = next((t for _, t, _ in src.messages([topics.scan])), 0) + int(_TF_ODOMETRY_SEARCH_S * 1e9)
+    found = find(tf_tree(lambda tree, t_bag: t_bag <= until and find(tree) is None))
+    if found is None:
+        if asked:
+            seen = ", ".join(f"{p} -> {c}" for c, p in sorted(moving.items(), key=lambda x: (x[1], x[0])))
+            want = f"frame {config.frames.odom!r}" if config.frames.odom else "a frame named like 'odom'"
+            of = (f"the base frame {config.frames.base!r}" if config.frames.base
+                  else f"the LiDAR frame {lidar_frame!r}")
+            raise BagError(f"{src.path}: topics.odometry is 'tf' but {tf_topic} has no transform from {want} "
+                           f"to {of} or a parent of it up to {_TF_ODOMETRY_SEARCH_S:g} s after the first scan "
+                           f"(transforms on {tf_topic}: {seen or 'none'}); set frames.odom and frames.base")
+        return replace(topics, odometry=None)
+    if not asked:
+        log.info("odometry: %s %s -> %s (no nav_msgs/Odometry topic)", tf_topic, found.odom_frame, found.child_frame)
+    return replace(topics, odometry=tf_topic, odometry_tf=found)
 
 
 def _calibration_from_bag(src: OpenBag, topics: Topics, lidar_frame: str,

@@ -180,6 +180,8 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         "Registration " + registration_line(s["registration"]) + ".",
         "",
+        *([f"Agreement of the scans with the map (no ground truth needed): {consistency_line(s['consistency'])}.",
+           ""] if s.get("consistency") else []),
         f"![trajectory]({pictures['trajectory']})",
         "",
         "## Classes",
@@ -235,9 +237,20 @@ def registration_line(r: dict[str, Any]) -> str:
     if mode == "fused":
         n = r.get("filter_resets", 0)
         parts.append(f"the filter restarted {n} time{'s' if n != 1 else ''}")
+    if r.get("icp_degenerate"):
+        parts.append(f"{r['icp_degenerate']} degenerate matches (a corridor: odometry holds the direction along it)"
+                     if mode == "fused" else f"{r['icp_degenerate']} degenerate matches (a corridor)")
     if r.get("odom_missing"):
         parts.append(f"{r['odom_missing']} scans without odometry")
     return f"{mode} ({text})" + (": " + ", ".join(parts) if parts else "")
+
+
+def consistency_line(c: dict[str, Any] | None) -> str:
+    """The truth-free consistency score in words ('' for folders written before it existed)."""
+    if not c:
+        return ""
+    return (f"{100 * c['endpoints_on_map']:.1f} % of {c['endpoints_sampled']} sampled returns within a cell of an "
+            f"occupied cell; walls {100 * c['wall_thickness_m']:.1f} cm thick on average")
 
 
 def _cpu_line(cpu: dict[str, float] | None) -> str:

@@ -35,7 +35,7 @@ class TourTopics(_Part):
     scan: str
     image: str | None
     image_kind: str | None
-    odometry: str | None
+    odometry: str | None  # the Odometry topic, or "/tf (odom -> base_footprint)" for odometry from /tf
     tf_static: str | None
 
 
@@ -68,7 +68,7 @@ class CountsSummary(_Part):
     scans: int  # scans painted and mapped
     scans_without_image: int
     scans_without_odometry: int
-    odometry: int  # odometry messages
+    odometry: int  # odometry messages (from /tf: odometry transforms)
     bad_scans: int  # no beams, or no angle increment
     scans_out_of_order: int  # repeated or backwards stamps
     images: int  # camera images segmented
@@ -88,6 +88,13 @@ class PaintingSummary(_Part):
     backend: str | None
     scans_painted: int
     readings_below_range_min_fraction: float
+    # None: not recorded (folders written before these were counted)
+    readings_below_range_min_unblocked_fraction: float | None = None  # on beams not masked as blocked
+    readings_nan_fraction: float | None = None
+    readings_nan_unblocked_fraction: float | None = None  # on beams not masked as blocked
+    blocked_beams: int | None = None  # beams masked as blocked (paint.blocked_share), over all beam layouts
+    # their contiguous sectors: {"first_deg", "last_deg", "beams"}, angles in the LiDAR frame
+    blocked_sectors: list[dict[str, float]] | None = None
     points_in_view_fraction: float
     occlusion_filter: OcclusionSummary
     hits_by_mobility: dict[str, int]
@@ -130,6 +137,14 @@ class ThroughputSummary(_Part):
     real_time_factor: float | None
 
 
+class ConsistencySummary(_Part):
+    """How well the scans agree with the map (:mod:`semmap.grid.consistency`); no ground truth needed."""
+
+    endpoints_on_map: float  # share of sampled returns within one cell of an occupied cell of map.yaml
+    wall_thickness_m: float  # mean thickness of the occupied structures
+    endpoints_sampled: int
+
+
 class BuildSummary(_Part):
     """What one ``semmap build`` read, did and wrote."""
 
@@ -152,6 +167,8 @@ class BuildSummary(_Part):
     peak_rss_mb: float
     peak_rss_mb_workers: dict[str, float]
     files: list[str]
+    #: None in map folders written before semmap scored it
+    consistency: ConsistencySummary | None = None
 
     def to_json(self) -> str:
         """The text of ``summary.json`` (Python's JSON float formatting, as every earlier folder)."""

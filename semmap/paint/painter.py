@@ -20,7 +20,7 @@ Points that land outside the image, behind the camera, or on no image at all are
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +41,30 @@ from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["CameraView", "PaintResult", "PaintStats", "Painter"]
+__all__ = ["BlockedBeams", "CameraView", "PaintResult", "PaintStats", "Painter"]
+
+
+@dataclass(frozen=True)
+class BlockedBeams:
+    """The beams of one beam layout masked as blocked (``paint.blocked_share``), as judged so far.
+
+    ``index`` (K,) the blocked beams' indices in the scan; ``sectors`` their contiguous runs as
+    (first beam's angle, last beam's angle, beams), angles in rad in the LiDAR frame as the scan gives them.
+    """
+
+    layout: tuple[float, float, int]  # (angle_min, angle_increment, beams) of the scans
+    scans: int  # scans of this layout seen when judged
+    index: NDArray[np.intp]
+    sectors: tuple[tuple[float, float, int], ...]
+
+    @property
+    def count(self) -> int:
+        return int(self.index.size)
+
+    @property
+    def span(self) -> float:
+        """The angle the blocked beams cover, rad (beams × increment)."""
+        return self.count * abs(self.layout[1])
 
 
 @dataclass
@@ -57,9 +80,23 @@ class PaintStats:
     motion_compensated: int = 0
     beams: int = 0
     below_range_min: int = 0  # finite readings under range_min (0 included)
+    below_range_min_unblocked: int = 0  # of those, on beams not masked as blocked (paint.below_range_min applies)
+    nan_readings: int = 0
+    nan_unblocked: int = 0  # of those, on beams not masked as blocked (paint.nan_readings applies)
+    # returns beside those (the next or previous beam), and of these the ones beyond half of range_max: far
+    # ones hint that the driver reports "nothing within range" as NaN, near ones that NaN is a dropout
+    returns_beside_nan: int = 0
+    returns_beside_nan_far: int = 0
+    # per beam layout seen in at least paint.blocked_min_scans scans: its beams masked as blocked (maybe none)
+    blocked: dict[tuple[float, float, int], BlockedBeams] = field(default_factory=dict)
     occlusion_relabelled: int = 0  # points on a mask the occlusion filter made unknown
     occlusion_max_per_scan: int = 0
     occlusion_scans: int = 0  # scans with at least one such point
+
+    @property
+    def blocked_beams(self) -> int:
+        """Beams masked as blocked, over all beam layouts."""
+        return sum(b.count for b in self.blocked.values())
 
 
 @dataclass(frozen=True)
@@ -114,6 +151,49 @@ class _Layout:
         return cls(key, T_base_lidar[:3, 3].copy(), dirs, w_first, w_last)
 
 
+# beam layouts whose per-beam state is kept at once (a LiDAR keeps its layout; this bounds a bag that does not)
+_MAX_LAYOUTS = 8
+
+
+class _BeamState:
+    """How often each beam of one layout has seen out: the blocked-beam mask, judged online.
+
+    A beam *sees out* in a scan when it reads a real return (range_min to range_max) or a REP-117 no
+    return (+inf, or beyond range_max). After ``scans`` scans of the layout, a beam that has seen out
+    in at most ``paint.blocked_share`` of them is masked: its readings below range_min and its NaN
+    readings clear nothing, whatever ``paint.below_range_min`` and ``paint.nan_readings`` say. This
+    catches a sector blocked by the robot's body, which reads below range_min (Hokuyo URG: 0.019 m)
+    or NaN in every scan, while the same codes on a beam that sees out ("nothing within range") keep
+    following the settings. From the first scan on it is conservative: a beam that has not returned
+    yet is masked until it does, and one spurious return in a hundred scans does not unmask a blocked
+    beam. Unlike a run length over the last K scans it does not mask a beam that sees nothing for a
+    long while on a tour (down a corridor: runs of 300 NaN scans in the Hokuyo bags), and it needs
+    two counters per beam, whatever the length of the tour.
+    """
+
+    __slots__ = ("reported", "scans", "seen")
+
+    def __init__(self, beams: int) -> None:
+        self.scans = 0
+        self.seen = np.zeros(beams, np.int64)  # scans in which each beam saw out
+        self.reported: NDArray[np.bool_] | None = None  # the mask last written to the stats
+
+
+def _blocked_beams(key: tuple[float, float, int], scans: int, masked: NDArray[np.bool_]) -> BlockedBeams:
+    """The masked beams of a layout, and their contiguous sectors."""
+    angle_min, inc, n = key
+    idx = np.flatnonzero(masked)
+    runs: list[tuple[int, int]] = []
+    if idx.size:
+        breaks = np.flatnonzero(np.diff(idx) != 1)
+        runs = list(zip(np.r_[idx[0], idx[breaks + 1]].tolist(), np.r_[idx[breaks], idx[-1]].tolist()))
+        # a scanner that turns full circle: a sector across the seam (the last beam beside the first) is one
+        if len(runs) > 1 and runs[0][0] == 0 and runs[-1][1] == n - 1 and n * abs(inc) > 2 * np.pi - 1.5 * abs(inc):
+            runs[-1] = (runs[-1][0], runs.pop(0)[1])
+    sectors = tuple((angle_min + inc * a, angle_min + inc * b, (b - a) % n + 1) for a, b in runs)
+    return BlockedBeams(key, scans, idx, sectors)
+
+
 def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
     """The range of undistorted normalised coordinates (x/z, y/z) that land in the image.
 
@@ -165,6 +245,7 @@ class Painter:
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
         self._layout_cache: _Layout | None = None
+        self._beam_states: dict[tuple[float, float, int], _BeamState] = {}
         self._occlusion = paint_cfg.occlusion if paint_cfg.occlusion.filter else None
         # per label value, the most an object of that class spans (inf: structure, or no typical size)
         self._extent: NDArray[np.float64] | None = None
@@ -183,20 +264,59 @@ class Painter:
 
     def _beams(self, scan: Scan, layout: _Layout) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
         """Base-frame points (N, 3) at the free-space range of each beam, the valid-return mask,
-        and the ranges as float64."""
+        and the ranges as float64. A beam that clears nothing gets a point at the LiDAR's origin."""
         r = scan.ranges.astype(np.float64)
         lo = max(scan.range_min, 1e-3)
         # comparisons with NaN are False (and numpy does not warn about them)
         hit = (r >= lo) & (r <= scan.range_max)  # False for NaN and ±inf alike
-        # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing)
+        # REP-117: +inf = no return (free up to the range limit); NaN, -inf, 0 = invalid (clears nothing);
+        # readings below range_min (0 included) and NaN follow paint.below_range_min and paint.nan_readings
         no_return = r > scan.range_max
         below = (r < lo) & (r > -np.inf)
+        nan = np.isnan(r)
+        # on beams masked as blocked (or not known to see out yet) neither clears anything
+        masked = self._masked_beams(layout.key, hit | no_return)
+        open_below = below & ~masked
+        open_nan = nan & ~masked
         if self.paint_cfg.below_range_min == "no_return":  # driver error codes meaning "nothing seen"
-            no_return |= below
-        self.stats.beams += r.size
-        self.stats.below_range_min += int(np.count_nonzero(below))
+            no_return |= open_below
+        if self.paint_cfg.nan_readings == "no_return":
+            no_return |= open_nan
+        st = self.stats
+        st.beams += r.size
+        st.below_range_min += int(np.count_nonzero(below))
+        st.below_range_min_unblocked += int(np.count_nonzero(open_below))
+        st.nan_readings += int(np.count_nonzero(nan))
+        n_open_nan = int(np.count_nonzero(open_nan))
+        st.nan_unblocked += n_open_nan
+        if n_open_nan:
+            beside = np.zeros(r.size, bool)
+            beside[1:] |= open_nan[:-1]
+            beside[:-1] |= open_nan[1:]
+            beside &= hit
+            st.returns_beside_nan += int(np.count_nonzero(beside))
+            st.returns_beside_nan_far += int(np.count_nonzero(beside & (r > 0.5 * scan.range_max)))
         free = np.where(hit, r, np.where(no_return, min(scan.range_max, self.no_return_range), 0.0))
         return layout.origin3 + layout.dirs_base * free[:, None], hit, r
+
+    def _masked_beams(self, key: tuple[float, float, int], seen_out: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Count this scan into its layout's beam state (``seen_out``: the beams that read a return or +inf);
+        the beams masked as blocked (see :class:`_BeamState`)."""
+        state = self._beam_states.get(key)
+        if state is None:
+            if len(self._beam_states) >= _MAX_LAYOUTS:
+                del self._beam_states[next(iter(self._beam_states))]
+            state = self._beam_states[key] = _BeamState(key[2])
+        state.scans += 1
+        state.seen += seen_out
+        masked = state.seen <= self.paint_cfg.blocked_share * state.scans
+        if state.scans >= self.paint_cfg.blocked_min_scans:
+            if state.reported is None or not np.array_equal(masked, state.reported):
+                state.reported = masked
+                self.stats.blocked[key] = _blocked_beams(key, state.scans, masked)
+            else:
+                self.stats.blocked[key] = replace(self.stats.blocked[key], scans=state.scans)
+        return masked
 
     @staticmethod
     def beam_step_ns(scan: Scan) -> int:

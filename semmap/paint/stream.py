@@ -20,6 +20,10 @@ It buffers just enough to pair each scan:
   ``sync.keep_images_s``.
 * Odometry older than ``sync.keep_odometry_s`` before the scan is forgotten once it is yielded.
 
+Odometry comes from the tour's Odometry topic, or from ``/tf`` (``tour.topics.odometry_tf``: the
+``odom → base`` transform of each ``/tf`` message, composed with the fixed chain to the base frame;
+the other transforms are ignored), read in the same pass as the scans.
+
 Scans with no beams, or an angle increment of 0 or NaN, are skipped and counted
 (``counts.bad_scans``); so are scans whose stamp or middle beam is not after the last one's
 (``counts.scans_out_of_order``).
@@ -52,6 +56,8 @@ __all__ = ["PairedScan", "ScanStream", "StreamCounts", "open_build_tour", "tour_
 
 ProgressFn = Callable[[int, int], None]
 
+_OdomRecord = tuple[int, str, str, NDArray[np.float64]]
+
 #: scans with no image close enough: the nearest image's offsets kept for the warning at the end (at most)
 _MAX_OFFSETS_KEPT = 4096
 
@@ -76,7 +82,7 @@ class StreamCounts:
     """What the stream read and skipped."""
 
     scans: int = 0  # yielded
-    odometry: int = 0  # odometry messages read
+    odometry: int = 0  # odometry messages read (from /tf: odometry transforms)
     bad_scans: int = 0
     scans_out_of_order: int = 0
     #: scans with no image close enough: how far the nearest one was, ns (at most 4096 kept)
@@ -103,6 +109,9 @@ class ScanStream:
         self.read_stats = ReadStats()
         #: the odometry track (None: the tour has no odometry topic)
         self.odometry = OdomTrack(sync.max_odom_gap) if tour.topics.odometry else None
+        self._odom_tf = tour.topics.odometry_tf  # odometry from /tf: the transform that carries it
+        #: added to odometry stamps to put them on the scans' clock (sync.odometry_offset)
+        self._odom_offset_ns = int(round(sync.odometry_offset * 1e9))
         #: seconds spent waiting for segmentations (a slow model shows here)
         self.wait_images_s = 0.0
         self._segs: deque[Segmentation] = deque()
@@ -138,10 +147,19 @@ class ScanStream:
             self.progress(total, total)
 
     # -- inputs -----------------------------------------------------------------------------
-    def _on_odometry(self, record: tuple[int, str, str, NDArray[np.float64]]) -> None:
+    def _on_odometry(self, record: _OdomRecord | list[_OdomRecord]) -> None:
+        """An Odometry message (stamp, frame, child frame, pose), or a /tf message's transforms
+        (stamp, parent, child, T_parent_child)."""
         assert self.odometry is not None
+        if self._odom_tf is not None:
+            assert isinstance(record, list)
+            for stamp, pose in self._odom_tf.poses(record):
+                self.odometry.add(stamp + self._odom_offset_ns, pose)
+                self.counts.odometry += 1
+            return
+        assert isinstance(record, tuple)
         stamp, _, _, pose = record
-        self.odometry.add(stamp, pose)
+        self.odometry.add(stamp + self._odom_offset_ns, pose)
         self.counts.odometry += 1
 
     def _on_scan(self, t_bag: int, scan: Scan) -> None:

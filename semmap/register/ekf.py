@@ -3,16 +3,26 @@
 Nothing else in semmap imports :mod:`filterpy`; it is imported lazily when a
 :class:`Se2Ekf` is built.
 
-State ``x = (x, y, yaw)``: the pose of ``base_link`` in the map frame, with
-covariance ``P`` (m², rad²).
+State ``(x, y, yaw, b, k_turn, k_drive)``: the pose of ``base_link`` in the map frame, and the
+wheel odometry's systematic errors as they are on real robots: a heading drift ``b`` (rad per
+metre driven: unequal wheel diameters), and scale errors of the angle turned (``k_turn``: the
+effective wheel base) and of the distance driven (``k_drive``: the wheel radius). Covariance
+``P`` (m², rad², ...).
 
 * **Predict** with an odometry increment ``u = (dx, dy, dyaw)`` expressed in the
-  previous base frame: ``x ← x ⊕ u``. The increment's noise grows with the
-  distance driven and the angle turned (:class:`~semmap.config.EkfConfig`).
+  previous base frame, corrected by the errors: ``pose ← pose ⊕ ((1 + k_drive)·(dx, dy),
+  (1 + k_turn)·dyaw + b·d)`` with ``d = |(dx, dy)|``. The increment's noise grows with the
+  distance driven and the angle turned (:class:`~semmap.config.EkfConfig`); the errors drift
+  slowly (a random walk per metre and radian).
 * **Update** with a pose measurement ``z`` (the ICP result, a (3, 1) array) with
-  ``H = I`` and the yaw residual wrapped to (-π, π].
+  ``H = [I 0]`` and the yaw residual wrapped to (-π, π]. ICP poses are what make the odometry
+  errors observable: after a few metres the filter predicts with the robot's own odometry
+  corrected, so the gate below tests ICP against the odometry the robot really has.
 * **Gate**: :meth:`Se2Ekf.mahalanobis2` gives ``yᵀ S⁻¹ y`` of a candidate
   measurement before it is applied, so the caller can reject outliers.
+
+With the three error priors at 0 (``odom_heading_drift_std``, ``odom_turn_scale_std``,
+``odom_drive_scale_std``) the filter is the plain SE(2) EKF.
 """
 
 from __future__ import annotations
@@ -30,7 +40,8 @@ __all__ = ["Se2Ekf", "odometry_noise"]
 
 log = logging.getLogger(__name__)
 
-_H = np.eye(3)
+_H = np.hstack([np.eye(3), np.zeros((3, 3))])
+_DIM = 6
 
 
 def odometry_noise(delta: ArrayLike, cfg: EkfConfig) -> NDArray[np.float64]:
@@ -40,7 +51,7 @@ def odometry_noise(delta: ArrayLike, cfg: EkfConfig) -> NDArray[np.float64]:
     grows linearly (scale errors, heading drift) plus a random walk whose variance
     grows linearly, on both translation axes and on the heading::
 
-        var_xy  = (odom_trans_noise · d)² + odom_trans_rw² · d
+        var_xy  = (odom_trans_noise · d)² + (odom_trans_per_rad · a)² + odom_trans_rw² · d
         var_yaw = (odom_rot_noise · a + odom_rot_per_m · d)² + odom_rot_rw² · (d + a)
 
     Each std is at least ``odom_min_noise``.
@@ -49,9 +60,17 @@ def odometry_noise(delta: ArrayLike, cfg: EkfConfig) -> NDArray[np.float64]:
     d = float(np.hypot(dx, dy))
     a = abs(float(dyaw))
     floor = cfg.odom_min_noise ** 2
-    var_t = max((cfg.odom_trans_noise * d) ** 2 + cfg.odom_trans_rw ** 2 * d, floor)
+    var_t = max((cfg.odom_trans_noise * d) ** 2 + (cfg.odom_trans_per_rad * a) ** 2 + cfg.odom_trans_rw ** 2 * d,
+                floor)
     var_r = max((cfg.odom_rot_noise * a + cfg.odom_rot_per_m * d) ** 2 + cfg.odom_rot_rw ** 2 * (d + a), floor)
     return np.diag([var_t, var_t, var_r])
+
+
+def _corrected(u: NDArray[np.float64], errors: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The odometry increment ``u`` with the systematic ``errors`` (b, k_turn, k_drive) taken out."""
+    b, k_turn, k_drive = errors
+    d = float(np.hypot(u[0], u[1]))
+    return np.array([(1.0 + k_drive) * u[0], (1.0 + k_drive) * u[1], (1.0 + k_turn) * u[2] + b * d])
 
 
 def _residual(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -69,9 +88,11 @@ def _make_filter() -> Any:
         x: NDArray[np.float64]
 
         def predict_x(self, u: Any = 0) -> None:
-            self.x = se2_compose(self.x.reshape(3), np.asarray(u, dtype=np.float64).reshape(3)).reshape(3, 1)
+            x = self.x.reshape(_DIM)
+            step = _corrected(np.asarray(u, dtype=np.float64).reshape(3), x[3:])
+            self.x = np.concatenate([se2_compose(x[:3], step), x[3:]]).reshape(_DIM, 1)
 
-    return _Se2Filter(dim_x=3, dim_z=3)
+    return _Se2Filter(dim_x=_DIM, dim_z=3)
 
 
 class Se2Ekf:
@@ -81,18 +102,27 @@ class Se2Ekf:
         self.cfg = cfg
         self._f = _make_filter()
         self._f.R = np.diag([cfg.icp_xy_std ** 2, cfg.icp_xy_std ** 2, cfg.icp_yaw_std ** 2])
+        #: prior std of (heading drift, turn scale, drive scale)
+        self._prior = np.array([cfg.odom_heading_drift_std, cfg.odom_turn_scale_std, cfg.odom_drive_scale_std])
+        self._started = False  # the odometry errors are set (to 0, with their prior) by the first reset
         self.reset(pose, cov)
 
     # -- state ---------------------------------------------------------------------
     @property
     def pose(self) -> NDArray[np.float64]:
         """The current estimate ``(x, y, yaw)`` (a copy)."""
-        return self._f.x.reshape(3).copy()
+        return self._f.x.reshape(_DIM)[:3].copy()
 
     @property
     def cov(self) -> NDArray[np.float64]:
-        """The current 3x3 covariance (a copy)."""
-        return np.array(self._f.P, dtype=np.float64)
+        """The current 3x3 covariance of the pose (a copy)."""
+        return np.array(self._f.P[:3, :3], dtype=np.float64)
+
+    @property
+    def odometry_errors(self) -> dict[str, float]:
+        """The estimated systematic odometry errors: heading drift (rad/m), turn and drive scale errors."""
+        b, k_turn, k_drive = self._f.x.reshape(_DIM)[3:]
+        return {"heading_drift_rad_per_m": float(b), "turn_scale": float(k_turn), "drive_scale": float(k_drive)}
 
     @property
     def R(self) -> NDArray[np.float64]:
@@ -100,43 +130,71 @@ class Se2Ekf:
         return np.array(self._f.R, dtype=np.float64)
 
     def reset(self, pose: ArrayLike, cov: ArrayLike | None = None) -> None:
-        """Set the state; ``cov`` defaults to ``odom_min_noise²`` on the diagonal."""
+        """Set the pose; ``cov`` defaults to ``odom_min_noise²`` on the diagonal. The odometry errors
+        learnt so far are kept (the first call sets them to 0 with their prior covariance)."""
         p = np.asarray(pose, dtype=np.float64).reshape(3).copy()
         p[2] = wrap_angle(p[2])
-        self._f.x = p.reshape(3, 1)
         floor = max(self.cfg.odom_min_noise, 1e-9) ** 2
-        self._f.P = np.eye(3) * floor if cov is None else np.asarray(cov, dtype=np.float64).reshape(3, 3).copy()
+        pose_cov = np.eye(3) * floor if cov is None else np.asarray(cov, dtype=np.float64).reshape(3, 3).copy()
+        if self._started:
+            errors, errors_cov = self._f.x.reshape(_DIM)[3:].copy(), np.array(self._f.P[3:, 3:])
+        else:
+            errors, errors_cov = np.zeros(3), np.diag(self._prior ** 2)
+            self._started = True
+        self._f.x = np.concatenate([p, errors]).reshape(_DIM, 1)
+        P = np.zeros((_DIM, _DIM))
+        P[:3, :3] = pose_cov
+        P[3:, 3:] = errors_cov
+        self._f.P = P
 
     # -- filter steps ---------------------------------------------------------------
-    def predict(self, delta: ArrayLike, noise_scale: float = 1.0) -> None:
-        """Propagate by the odometry increment ``delta`` (previous base frame); noise × ``noise_scale``²."""
+    def predict(self, delta: ArrayLike, noise_scale: ArrayLike = 1.0) -> None:
+        """Propagate by the odometry increment ``delta`` (previous base frame); the noise's std is
+        multiplied by ``noise_scale`` (a number, or one per axis x, y, yaw)."""
         u = np.asarray(delta, dtype=np.float64).reshape(3)
-        yaw = float(self._f.x[2, 0])
+        x = self._f.x.reshape(_DIM)
+        yaw = float(x[2])
         c, s = np.cos(yaw), np.sin(yaw)
-        dx, dy = u[0], u[1]
-        # Jacobians of x ⊕ u with respect to the state (F) and to the increment (G).
-        self._f.F = np.array([[1.0, 0.0, -s * dx - c * dy],
-                              [0.0, 1.0, c * dx - s * dy],
-                              [0.0, 0.0, 1.0]])
+        v = _corrected(u, x[3:])  # the step the filter takes
+        dx, dy = v[0], v[1]
+        d = float(np.hypot(u[0], u[1]))
+        # the Jacobian of the motion with respect to the state: the pose, and the odometry errors
+        # through the corrected step (∂x'/∂k_drive = R(yaw)·(ux, uy), ∂yaw'/∂b = d, ∂yaw'/∂k_turn = uyaw)
+        F = np.eye(_DIM)
+        F[0, 2], F[1, 2] = -s * dx - c * dy, c * dx - s * dy
+        F[0, 5], F[1, 5] = c * u[0] - s * u[1], s * u[0] + c * u[1]
+        F[2, 3], F[2, 4] = d, u[2]
+        self._f.F = F
         # the increment's noise is isotropic in x and y, so rotating it into the map frame leaves it as is
-        self._f.Q = (noise_scale ** 2) * odometry_noise(u, self.cfg)
+        scale = np.broadcast_to(np.asarray(noise_scale, dtype=np.float64), (3,))
+        Q = np.zeros((_DIM, _DIM))
+        Q[:3, :3] = odometry_noise(u, self.cfg) * np.outer(scale, scale)
+        Q[3:, 3:] = np.diag((self.cfg.odom_error_drift * self._prior) ** 2 * (d + abs(float(u[2]))))
+        self._f.Q = Q
         self._f.predict(u=u)
+
+    def corrected(self, delta: ArrayLike) -> NDArray[np.float64]:
+        """The odometry increment ``delta`` with the systematic errors estimated so far taken out."""
+        return _corrected(np.asarray(delta, dtype=np.float64).reshape(3), self._f.x.reshape(_DIM)[3:])
 
     def innovation(self, z: ArrayLike) -> NDArray[np.float64]:
         """``z - x`` with the yaw wrapped, shape (3,)."""
         zz = np.asarray(z, dtype=np.float64).reshape(3, 1)
-        return _residual(zz, self._f.x).reshape(3)
+        return _residual(zz, self._f.x[:3]).reshape(3)
 
-    def mahalanobis2(self, z: ArrayLike) -> float:
-        """Squared Mahalanobis distance ``yᵀ (P + R)⁻¹ y`` of a pose measurement, before applying it."""
+    def mahalanobis2(self, z: ArrayLike, R: ArrayLike | None = None) -> float:
+        """Squared Mahalanobis distance ``yᵀ (P + R)⁻¹ y`` of a pose measurement, before applying it
+        (``R``: this measurement's covariance; default the configured one)."""
         y = self.innovation(z)
-        s = self._f.P + self._f.R
+        s = self._f.P[:3, :3] + (self._f.R if R is None else np.asarray(R, dtype=np.float64))
         return float(y @ np.linalg.solve(s, y))
 
-    def update(self, z: ArrayLike) -> None:
-        """Fuse a pose measurement ``z = (x, y, yaw)`` (ungated; gate with :meth:`mahalanobis2`)."""
+    def update(self, z: ArrayLike, R: ArrayLike | None = None) -> None:
+        """Fuse a pose measurement ``z = (x, y, yaw)`` with covariance ``R`` (default: the configured
+        one); ungated, gate with :meth:`mahalanobis2`."""
         zz = np.asarray(z, dtype=np.float64).reshape(3, 1)
-        self._f.update(zz, HJacobian=lambda _x: _H, Hx=lambda x: x, residual=_residual)
+        rr = None if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
+        self._f.update(zz, HJacobian=lambda _x: _H, Hx=lambda x: x[:3], R=rr, residual=_residual)
         self._f.x[2, 0] = wrap_angle(self._f.x[2, 0])
         # keep P symmetric against round-off
         self._f.P = 0.5 * (self._f.P + self._f.P.T)

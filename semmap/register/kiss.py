@@ -18,7 +18,7 @@ points become (N, 3) float64 with z = 0 and poses 4x4 matrices. Deskewing is off
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..config import RegistrationConfig
 from ..geometry import se2_to_se3, se3_inverse, se3_to_se2
 
-__all__ = ["KissMatcher", "PreparedScan"]
+__all__ = ["KissMatcher", "PreparedScan", "match_information"]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +42,56 @@ class PreparedScan:
 
     map_points: NDArray[np.float64]
     source: NDArray[np.float64]
+    #: the point-to-line Hessian of the match (3x3, base frame, per unit residual variance): see
+    #: :func:`match_information`
+    information: NDArray[np.float64] = field(default_factory=lambda: np.zeros((3, 3)))
+
+
+def match_information(points: NDArray[np.float64], surface: NDArray[np.float64], radius: float,
+                      neighbours: int = 8, max_flatness: float = 0.2) -> NDArray[np.float64]:
+    """The Hessian ``Σ Jᵢᵀ Jᵢ`` of a point-to-line match of ``points`` (N, 2), in their own frame.
+
+    Each point's line is fitted to the ``surface`` points (the same scan, denser) within
+    ``radius``: the normal ``n`` is the direction of least spread. A point on a line moves the
+    residual ``n · (δt + δθ · p⊥)`` for a small motion ``(δt, δθ)`` of the scan, so
+    ``J = (nx, ny, n · p⊥)`` with ``p⊥ = (-py, px)``. Points whose neighbourhood is no line (fewer
+    than 3 neighbours, or spread across it above ``max_flatness`` of the spread along it: a chair
+    leg, a corner, clutter) are left out; they constrain no direction reliably.
+
+    The Hessian is what ICP's solution is sure of: its inverse times the residual variance is
+    the pose covariance, and a corridor, whose lines all run one way, gives a Hessian with a
+    (near-)zero eigenvalue along it. The base frame does not depend on the pose, so this is
+    computed once per scan, beside the down-sampling.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    surf = np.asarray(surface, np.float64).reshape(-1, 2)
+    if pts.shape[0] == 0 or surf.shape[0] < 3:
+        return np.zeros((3, 3))
+    from scipy.spatial import cKDTree
+
+    k = min(neighbours, surf.shape[0])
+    d, idx = cKDTree(surf).query(pts, k=k, distance_upper_bound=radius)
+    found = np.isfinite(d)  # (N, k)
+    count = found.sum(axis=1)
+    nb = surf[np.where(found, idx, 0)]  # (N, k, 2); rows past the last neighbour are masked below
+    w = found[..., None].astype(np.float64)
+    mean = (nb * w).sum(axis=1) / np.maximum(count, 1)[:, None]
+    c = (nb - mean[:, None, :]) * w
+    cxx = (c[..., 0] ** 2).sum(axis=1)
+    cyy = (c[..., 1] ** 2).sum(axis=1)
+    cxy = (c[..., 0] * c[..., 1]).sum(axis=1)
+    # eigen-decomposition of each 2x2 covariance in closed form
+    half_tr = 0.5 * (cxx + cyy)
+    disc = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy ** 2, 0.0))
+    lo, hi = half_tr - disc, half_tr + disc
+    theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # the direction of most spread (the line)
+    n = np.stack([-np.sin(theta), np.cos(theta)], axis=1)  # across it
+    ok = (count >= 3) & (hi > 0) & (lo <= max_flatness ** 2 * hi)
+    if not np.any(ok):
+        return np.zeros((3, 3))
+    n, p = n[ok], pts[ok]
+    j = np.column_stack([n[:, 0], n[:, 1], -n[:, 0] * p[:, 1] + n[:, 1] * p[:, 0]])
+    return j.T @ j
 
 
 class KissMatcher:
@@ -93,8 +143,9 @@ class KissMatcher:
             # scan plane's points lie along lines, so their number falls linearly with the grid
             scale = float(source.shape[0] / self._max_source)
             source = self._down(map_points, self._voxel * 1.5 * scale)
-        return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64),
-                            np.ascontiguousarray(source, dtype=np.float64))
+        source = np.ascontiguousarray(source, dtype=np.float64)
+        return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64), source,
+                            match_information(source[:, :2], map_points[:, :2], 2.0 * self._voxel))
 
     @property
     def map_empty(self) -> bool:

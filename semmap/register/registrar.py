@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..config import RegistrationConfig
 from ..geometry import se2_apply, se2_between, se2_compose, se2_inverse, wrap_angle
 from ..records import Mobility, PaintedScan
-from .ekf import Se2Ekf
+from .ekf import Se2Ekf, odometry_noise
 from .kiss import KissMatcher
 
 __all__ = ["Registrar"]
@@ -104,11 +105,22 @@ class Registrar:
             "icp_rejected": 0,  # ICP results gated out by the EKF (fused)
             "icp_failed": 0,  # ICP not run or unusable: too few points, empty map, non-finite result
             "filter_resets": 0,  # fused: the EKF restarted from ICP after ekf.reset_after rejections in a row
+            "icp_degenerate": 0,  # ICP results whose match leaves a direction unconstrained (a corridor)
             "odom_missing": 0,  # scans without odometry (fused: ran as icp; odometry: extrapolated)
             "points_used": 0,  # hit points passed to the down-sampler
             "points_dynamic_excluded": 0,  # hit points dropped because painted dynamic
         }
         self._rejected_run = 0  # ICP results gated out in a row
+        # the odometry noise's scale (std; x, y and yaw), learnt from its disagreement with ICP
+        window = cfg.ekf.adapt_window
+        self._noise_scale = np.ones(3)
+        self._excess_t: deque[float] = deque(maxlen=max(window, 1))
+        self._excess_r: deque[float] = deque(maxlen=max(window, 1))
+        self._max_scale = np.ones(2)
+        self._anchor: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # ICP pose and covariance
+        self._stretch_odom = _ZERO.copy()  # corrected odometry motion since the anchor, in its frame
+        self._stretch_q = np.zeros(2)  # its configured noise: variance of translation (per axis) and heading
+        self._stretch_path = 0.0  # m driven + rad turned since the anchor
         self._max_d2 = 0.0
         self._seconds = 0.0
 
@@ -118,6 +130,9 @@ class Registrar:
         """Counters for the build summary, plus ``mode``, ``seconds`` and ``scans_per_s``."""
         out: dict[str, Any] = {"mode": self.cfg.mode, **self._counts}
         out["max_mahalanobis2_accepted"] = round(self._max_d2, 3)
+        if self._ekf is not None:
+            out["odometry_noise_scale_max"] = {"translation": round(float(self._max_scale[0]), 2),
+                                               "rotation": round(float(self._max_scale[1]), 2)}
         out["seconds"] = round(self._seconds, 3)
         out["scans_per_s"] = round(self._counts["scans"] / self._seconds, 1) if self._seconds > 0 else None
         return out
@@ -190,20 +205,30 @@ class Registrar:
             return _ZERO.copy()
 
         use_odom = self._ekf is not None and odom is not None and self._last_odom is not None
+        delta = _ZERO
         if use_odom:
             assert self._ekf is not None and self._last_odom is not None and odom is not None
-            self._ekf.predict(se2_between(self._last_odom, odom))
+            delta = se2_between(self._last_odom, odom)
+            self._ekf.predict(delta, self._noise_scale)
             guess = self._ekf.pose
         else:
             guess = se2_compose(self._pose, self._velocity)
 
         result = self._icp(prepared, guess)
+        R: NDArray[np.float64] | None = None
+        degenerate = False
+        if result is not None:
+            R, degenerate = self._icp_covariance(prepared, result)
+            self._counts["icp_degenerate"] += int(degenerate)
+        if self._ekf is not None:
+            self._learn_odometry_noise(delta if use_odom else None, result, R, degenerate)
         if use_odom:
             assert self._ekf is not None
             if result is not None:
-                d2 = self._ekf.mahalanobis2(result)
+                assert R is not None
+                d2 = self._ekf.mahalanobis2(result, R)
                 if d2 <= self.cfg.ekf.gate_chi2:
-                    self._ekf.update(result)
+                    self._ekf.update(result, R)
                     self._counts["icp_accepted"] += 1
                     self._max_d2 = max(self._max_d2, d2)
                     self._matcher.update_threshold(guess, result)
@@ -211,7 +236,7 @@ class Registrar:
                 elif self._fits_better(prepared, result, self._ekf.pose):
                     # odometry and ICP disagree, and ICP's pose explains the scan better than the prediction
                     # does (by more than ekf.fit_margin): the odometry is off (a heading drift, a slip), not ICP
-                    self._ekf.reset(result, self._ekf.R)
+                    self._ekf.reset(result, R)
                     self._counts["icp_accepted"] += 1
                     self._counts["icp_over_odometry"] += 1
                     self._matcher.update_threshold(guess, result)
@@ -225,7 +250,7 @@ class Registrar:
                         # ICP has disagreed with odometry for a while: odometry is the suspect
                         log.info("scan %d: %d ICP results gated out in a row; restarting the filter from ICP",
                                  scan.stamp_ns, self._rejected_run)
-                        self._ekf.reset(result, self._ekf.R)
+                        self._ekf.reset(result, R)
                         self._counts["filter_resets"] += 1
                         self._rejected_run = 0
                     else:
@@ -238,12 +263,83 @@ class Registrar:
                 self._matcher.update_threshold(guess, result)
             pose = guess if result is None else result
             if self._ekf is not None:  # fused without odometry: restart the filter from here
-                self._ekf.reset(pose, self._ekf.R if result is not None else self._ekf.cov)
+                self._ekf.reset(pose, R if R is not None else self._ekf.cov)
                 self._rejected_run = 0
         self._matcher.update_map(prepared, pose)
         return pose
 
     # -- helpers -------------------------------------------------------------------------
+    def _icp_covariance(self, prepared: Any, pose: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+        """ICP's pose covariance in the map frame, and whether the match is degenerate.
+
+        ``icp_point_std² · (H + prior)⁻¹``, with ``H`` the match's point-to-line Hessian in the base
+        frame (:func:`~semmap.register.kiss.match_information`) and a broad prior (1 m, 1 rad) that
+        keeps a direction no line constrains finite, rotated into the map frame; the fixed
+        ``icp_xy_std`` / ``icp_yaw_std`` are its floor. Degenerate: the weaker direction of
+        translation carries under ``degenerate_ratio`` of the stronger's information.
+        """
+        e = self.cfg.ekf
+        floor = np.diag([e.icp_xy_std ** 2, e.icp_xy_std ** 2, e.icp_yaw_std ** 2])
+        H = np.asarray(getattr(prepared, "information", np.zeros((3, 3))), np.float64)
+        lam = np.linalg.eigvalsh(H[:2, :2])
+        degenerate = bool(lam[1] <= 0 or lam[0] < e.degenerate_ratio * lam[1])
+        if e.icp_point_std <= 0:
+            return floor, degenerate
+        sp2 = e.icp_point_std ** 2
+        cov_base = sp2 * np.linalg.inv(H + sp2 * np.diag([1.0, 1.0, 1.0]))
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = G @ cov_base @ G.T + floor
+        return 0.5 * (cov + cov.T), degenerate
+
+    def _learn_odometry_noise(self, delta: NDArray[np.float64] | None, result: NDArray[np.float64] | None,
+                              R: NDArray[np.float64] | None, degenerate: bool) -> None:
+        """Scale the odometry noise to its disagreement with ICP (``ekf.adapt_window``, ``adapt_baseline``).
+
+        The wheels' motion (with the filter's systematic errors taken out) is compared with ICP's
+        over stretches of ``adapt_baseline`` (m driven + rad turned) between two well-constrained ICP
+        results: over a stretch the odometry's error grows while ICP's stays that of its two ends,
+        so ICP's noise does not swamp it (per scan, at walking speed, it would). Per stretch, the
+        share of the squared disagreement that the two ICP covariances do not explain, over the
+        configured odometry noise of the stretch; the scale is the square root of its median over
+        the last ``adapt_window`` stretches over the median of chi-square (1 dof for the heading, 2
+        for the position), at least 1. A median, so a wrong ICP match now and then does not move
+        it. ICP results are measured against the map, not integrated, so this does not feed back
+        on itself.
+        """
+        e = self.cfg.ekf
+        if e.adapt_window <= 0 or self._ekf is None:
+            return
+        if delta is not None:
+            q = odometry_noise(delta, e)
+            self._stretch_odom = se2_compose(self._stretch_odom, self._ekf.corrected(delta))
+            self._stretch_q += np.array([q[0, 0], q[2, 2]])
+            self._stretch_path += float(np.hypot(delta[0], delta[1]) + abs(delta[2]))
+        if result is None or R is None or degenerate:
+            return
+        if delta is None or self._anchor is None:  # (re)start a stretch here
+            self._anchor = (result.copy(), R.copy())
+            self._stretch_odom, self._stretch_q, self._stretch_path = _ZERO.copy(), np.zeros(2), 0.0
+            return
+        if self._stretch_path < e.adapt_baseline:
+            return
+        icp0, R0 = self._anchor
+        err = se2_between(self._stretch_odom, se2_between(icp0, result))
+        length = float(np.hypot(self._stretch_odom[0], self._stretch_odom[1]))
+        ends_r = R0[2, 2] + R[2, 2]
+        ends_t = np.trace(R0[:2, :2]) + np.trace(R[:2, :2]) + length ** 2 * R0[2, 2]
+        self._excess_r.append(max(err[2] ** 2 - ends_r, 0.0) / self._stretch_q[1])
+        self._excess_t.append(max(err[0] ** 2 + err[1] ** 2 - ends_t, 0.0) / (2.0 * self._stretch_q[0]))
+        cap = e.adapt_max_scale
+        need = min(3, e.adapt_window)
+        if len(self._excess_t) >= need:
+            self._noise_scale[:2] = float(np.sqrt(np.clip(np.median(self._excess_t) / 0.693, 1.0, cap ** 2)))
+        if len(self._excess_r) >= need:
+            self._noise_scale[2] = float(np.sqrt(np.clip(np.median(self._excess_r) / 0.455, 1.0, cap ** 2)))
+        self._max_scale = np.maximum(self._max_scale, self._noise_scale[1:])
+        self._anchor = (result.copy(), R.copy())
+        self._stretch_odom, self._stretch_q, self._stretch_path = _ZERO.copy(), np.zeros(2), 0.0
+
     def _select(self, scan: PaintedScan) -> tuple[NDArray[np.float64], int, int]:
         """Hit points within range, without dynamic ones if configured: (M, 2) base frame,
         and the counts of points used and of dynamic points left out."""

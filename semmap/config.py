@@ -237,9 +237,18 @@ class SyncConfig(_Model):
                                                                      "this, s")
     motion_compensation: bool = Field(True, description="move the scan to the image time through odometry")
     deskew: bool = Field(True, description="undo the robot's motion during a scan sweep through odometry")
-    odometry_offset: float = Field(0.0, ge=-10, le=10, description="seconds added to the odometry's stamps to "
-                                                                   "put them on the scans' clock (a driver that "
-                                                                   "stamps late or early)")
+    odometry_offset: float | Literal["auto"] = Field(
+        "auto", description="seconds added to the odometry's stamps to put them on the scans' clock (a driver "
+                            "that stamps late or early); 'auto': estimated from the tour's first turns "
+                            "(ICP's turn rate against the odometry's), 0 when they do not show it clearly")
+
+    @field_validator("odometry_offset")
+    @classmethod
+    def _offset_range(cls, v: float | str) -> float | str:
+        if isinstance(v, float) and not -10.0 <= v <= 10.0:
+            raise ValueError("must be 'auto' or seconds within ±10")
+        return v
+
     max_odom_gap: float = Field(0.5, gt=0, le=3600, description="odometry gaps longer than this are not "
                                                                  "interpolated, s")
     # buffering of the scan stream (semmap.paint.stream): memory stays bounded however long the tour

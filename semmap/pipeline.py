@@ -170,6 +170,7 @@ def build(
                                                what="semmap map folder") as tmp, read_bag(tour, lazy=True) as bag:
         tinfo, cfg = open_build_tour(tour, config, calibration, overrides, source=bag)
         cfg = _effective_config(tinfo, cfg)
+        cfg = _resolve_odometry_offset(tinfo, bag, cfg)
         _log_detected(tinfo, cfg)
         if tinfo.topics.image is None:
             log.warning("%s: no camera topic; building a LiDAR-only map (no classes)", tinfo.bag)
@@ -425,6 +426,32 @@ def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:
     if tinfo.calibration_path is not None:
         update["calibration"] = tinfo.calibration_path.resolve()
     return cfg.model_copy(update=update)
+
+
+def _resolve_odometry_offset(tinfo: Tour, bag: OpenBag, cfg: BuildConfig) -> BuildConfig:
+    """``sync.odometry_offset: auto``: estimate the odometry's clock offset from the tour's first scans
+    (:func:`~semmap.register.timing.estimate_odometry_offset`); the config then holds the number used."""
+    if cfg.sync.odometry_offset != "auto":
+        return cfg
+    offset = 0.0
+    if tinfo.topics.odometry:
+        from .paint.stream import sample_scans_and_odometry
+        from .register.timing import estimate_odometry_offset
+
+        t0 = time.perf_counter()
+        stamps, points, ot, op = sample_scans_and_odometry(tinfo, bag)
+        est = estimate_odometry_offset(stamps, points, ot, op[:, 2], cfg.registration)
+        if est.used:
+            offset = round(float(est.offset_s), 3)
+            log.warning("the odometry on %s is stamped %.0f ms %s the scans on %s: shifted by that, its turns "
+                        "agree with scan matching's (RMS %.4f rad per scan instead of %.4f); the odometry is "
+                        "shifted (sync.odometry_offset: %g; 0 keeps the stamps)", tinfo.topics.odometry_source,
+                        abs(offset) * 1000, "before" if offset > 0 else "after", tinfo.topics.scan,
+                        est.rms_at_best, est.rms_at_zero, offset)
+        else:
+            log.info("odometry clock offset: none applied (%s; %d scans, %.3f s)", est.reason, est.scans,
+                     time.perf_counter() - t0)
+    return cfg.model_copy(update={"sync": cfg.sync.model_copy(update={"odometry_offset": offset})})
 
 
 def _log_detected(tinfo: Tour, cfg: BuildConfig) -> None:

@@ -125,14 +125,14 @@ def have_generator() -> bool:
 # Building and scoring one world
 
 
-def run_world(name: str, tour: Path, maps: Path) -> dict[str, Any]:
+def run_world(name: str, tour: Path, maps: Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Build semmap's map (child process) and the naive map, score both."""
     from semmap.sim.score import load_truth, naive_map, score_map, score_masks
 
     row: dict[str, Any] = {"world": name, "tour": str(tour)}
     t = time.perf_counter()
     out = maps / name.replace(":", "_")
-    run_build(tour, out, {})
+    run_build(tour, out, overrides or {})
     row["build_s"] = time.perf_counter() - t
     truth = load_truth(tour)
     row["truth_objects_from"] = truth.objects_source
@@ -246,6 +246,8 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true", help="simulate again even when a cached tour exists")
     ap.add_argument("--maps", type=Path, help="keep the map folders here (default: a temporary folder)")
     ap.add_argument("--json", type=Path, help="also write every score here")
+    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
+                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"fit_margin": 0}}}\'')
     args = ap.parse_args()
 
     if args.seeds is not None:
@@ -282,7 +284,7 @@ def main() -> int:
                 t = time.perf_counter()
                 try:
                     tour, sim_s = fut.result()
-                    row = run_world(name, Path(tour), maps)
+                    row = run_world(name, Path(tour), maps, args.set)
                     row["simulate_s"] = sim_s
                 except Exception as exc:
                     last = (str(exc).strip().splitlines() or [""])[-1]

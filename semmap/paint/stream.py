@@ -110,8 +110,10 @@ class ScanStream:
         #: the odometry track (None: the tour has no odometry topic)
         self.odometry = OdomTrack(sync.max_odom_gap) if tour.topics.odometry else None
         self._odom_tf = tour.topics.odometry_tf  # odometry from /tf: the transform that carries it
-        #: added to odometry stamps to put them on the scans' clock (sync.odometry_offset)
-        self._odom_offset_ns = int(round(sync.odometry_offset * 1e9))
+        #: added to odometry stamps to put them on the scans' clock (sync.odometry_offset; "auto" is
+        #: resolved by the build before it streams, and taken as 0 by anything that does not)
+        offset = sync.odometry_offset
+        self._odom_offset_ns = int(round(offset * 1e9)) if isinstance(offset, float) else 0
         #: seconds spent waiting for segmentations (a slow model shows here)
         self.wait_images_s = 0.0
         self._segs: deque[Segmentation] = deque()
@@ -260,3 +262,50 @@ def tour_class_names(tour: Tour, cfg: BuildConfig) -> tuple[str, ...]:
         return tuple(probe.names)
     finally:
         probe.close()
+
+
+def sample_scans_and_odometry(tour: Tour, bag: OpenBag, max_scans: int = 600, max_s: float = 90.0,
+                              ) -> tuple[NDArray[np.int64], list[NDArray[np.float64]], NDArray[np.int64],
+                                         NDArray[np.float64]]:
+    """The tour's first scans (up to ``max_scans`` or ``max_s`` of bag time) as the times of their middle
+    beams and base-frame points (N, 2) of their returns (not deskewed), and the odometry read alongside
+    (stamps, (M, 3) poses, on its own clock). Messages that cannot be decoded are left out; the build reads them again, and says so."""
+    topics = [t for t in (tour.topics.scan, tour.topics.odometry) if t]
+    odom_tf = tour.topics.odometry_tf
+    R = tour.T_base_lidar[:2, :2]
+    o = tour.T_base_lidar[:2, 3]
+    stamps: list[int] = []
+    points: list[NDArray[np.float64]] = []
+    ot: list[int] = []
+    op: list[NDArray[np.float64]] = []
+    t_first: int | None = None
+    t_last_scan: int | None = None
+    for topic, t_bag, record in bag.records(topics, skip=lambda _t, _e: None):
+        if t_first is None:
+            t_first = t_bag
+        if topic == tour.topics.scan:
+            if t_last_scan is not None or len(stamps) >= max_scans or t_bag - t_first > max_s * 1e9:
+                if t_last_scan is None:
+                    t_last_scan = t_bag
+                if t_bag - t_last_scan > 1e9:  # odometry a second past the last scan taken, for shifts
+                    break
+                continue
+            scan: Scan = record
+            if scan.ranges.size == 0 or not np.isfinite(scan.angle_increment) or scan.angle_increment == 0:
+                continue
+            r = scan.ranges.astype(np.float64)
+            hit = (r >= max(scan.range_min, 1e-3)) & (r <= scan.range_max)
+            a = scan.angles[hit]
+            xy = np.column_stack([r[hit] * np.cos(a), r[hit] * np.sin(a)]) @ R.T + o
+            stamps.append(Painter.reference_ns(scan))  # the time of the middle beam, as painted scans have it
+            points.append(xy)
+        elif odom_tf is not None:
+            for stamp, pose in odom_tf.poses(record):
+                ot.append(stamp)
+                op.append(pose)
+        else:
+            stamp, _, _, pose = record
+            ot.append(stamp)
+            op.append(pose)
+    return (np.asarray(stamps, np.int64), points, np.asarray(ot, np.int64),
+            np.asarray(op, np.float64).reshape(-1, 3))

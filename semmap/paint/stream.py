@@ -269,7 +269,8 @@ def sample_scans_and_odometry(tour: Tour, bag: OpenBag, max_scans: int = 600, ma
                                          NDArray[np.float64]]:
     """The tour's first scans (up to ``max_scans`` or ``max_s`` of bag time) as the times of their middle
     beams and base-frame points (N, 2) of their returns (not deskewed), and the odometry read alongside
-    (stamps, (M, 3) poses, on its own clock). Messages that cannot be decoded are left out; the build reads them again, and says so."""
+    (stamps, (M, 3) poses, on its own clock). Messages that cannot be decoded are left out; the build
+    reads them again, and says so."""
     topics = [t for t in (tour.topics.scan, tour.topics.odometry) if t]
     odom_tf = tour.topics.odometry_tf
     R = tour.T_base_lidar[:2, :2]

@@ -606,6 +606,29 @@ class EkfConfig(_Model):
                                                           "real wheel odometry that drifts")
 
 
+class LoopClosureConfig(_Model):
+    """Loop closure (:mod:`semmap.register.loops`): keyframes, place recognition, ICP-verified loops and a
+    robust pose graph; the grid is fused again from the corrected poses."""
+
+    enabled: bool = Field(False, description="close loops: on long tours that come back, walls stop doubling")
+    keyframe_distance: float = Field(0.5, gt=0, le=100, description="m driven between keyframes (graph nodes)")
+    keyframe_angle: float = Field(0.35, gt=0, le=10, description="rad turned between keyframes")
+    min_separation: int = Field(30, ge=0, description="keyframes between the two ends of a loop")
+    search_radius: float = Field(3.0, ge=0, le=1000, description="m around the drifted estimate where a place "
+                                                                 "is looked for, plus drift_per_m per m driven "
+                                                                 "since")
+    drift_per_m: float = Field(0.05, ge=0, le=10, description="how far the estimate may have drifted, m per m")
+    descriptor: bool = Field(True, description="also recognise places by their shape (a scan-context "
+                                               "descriptor), wherever the drifted estimate puts them")
+    min_inliers: float = Field(0.6, gt=0, le=1, description="share of a keyframe's points that must lie within "
+                                                            "inlier_distance of the place matched")
+    inlier_distance: float = Field(0.1, gt=0, le=10, description="m")
+    refuse_min_shift: float = Field(0.025, ge=0, le=100, description="the grid is fused again from the corrected "
+                                                                      "poses when one moved a point 5 m from the "
+                                                                      "robot by more than this, m (else the first "
+                                                                      "fusion stands)")
+
+
 class RegistrationConfig(_Model):
     """Scan registration: KISS-ICP scan-to-map odometry, optionally fused with wheel odometry."""
 
@@ -632,6 +655,7 @@ class RegistrationConfig(_Model):
                                                   "and the step counts as failed")
     exclude_dynamic: bool = Field(True, description="points painted dynamic are not matched or mapped")
     ekf: EkfConfig = EkfConfig()
+    loop_closure: LoopClosureConfig = LoopClosureConfig()
 
 
 class GridConfig(_Model):

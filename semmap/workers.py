@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import GridConfig, RegistrationConfig, SegmentationConfig, segmentation_config
+from .config import GridConfig, LoopClosureConfig, RegistrationConfig, SegmentationConfig, segmentation_config
 from .errors import InternalError, SemmapError, WorkerError
 from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
@@ -595,7 +595,9 @@ class InProcessMapper:
 
         self._registrar = Registrar(reg_cfg)
         self._grid = SemanticGrid(grid_cfg, class_names)
+        self._grid_args = (grid_cfg, class_names)
         self._sample = EndpointSample()
+        self._refuse = _Refusion(reg_cfg)
         self._poses = array("d")
         self._busy = [0.0, 0.0]
 
@@ -607,17 +609,60 @@ class InProcessMapper:
         pose = self._registrar.register(painted, odom_pose)
         t1 = time.perf_counter()
         self._grid.integrate(pose, painted)
+        self._refuse.keep(painted)
         self._sample.add(len(self._poses) // 3, painted)
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
         self._poses.extend(pose.tolist())
 
     def finish(self) -> MapperResult:
-        return MapperResult(_pose_array(self._poses), self._grid.layers(), self._registrar.stats, self._busy[0],
+        from .grid import SemanticGrid
+
+        poses = _pose_array(self._poses)
+        t0 = time.perf_counter()
+        final = self._registrar.close_loops()
+        t1 = time.perf_counter()
+        grid = self._refuse.fuse_again(poses, final, lambda: SemanticGrid(*self._grid_args)) or self._grid
+        self._busy[0] += t1 - t0
+        self._busy[1] += time.perf_counter() - t1
+        return MapperResult(poses if final is None else final, grid.layers(), self._registrar.stats, self._busy[0],
                             self._busy[1], endpoints=self._sample.base_points)
 
     def close(self) -> None:
-        pass
+        self._refuse.close()
+
+
+class _Refusion:
+    """With loop closure: the painted scans, spooled to disk, fused again from the corrected poses."""
+
+    def __init__(self, reg_cfg: RegistrationConfig) -> None:
+        from .grid.spool import ScanSpool
+
+        self._spool = ScanSpool() if reg_cfg.loop_closure.enabled else None
+        self._min_shift = reg_cfg.loop_closure.refuse_min_shift
+
+    def keep(self, painted: PaintedScan) -> None:
+        if self._spool is not None:
+            self._spool.append(painted)
+
+    def fuse_again(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
+                   new_grid: Callable[[], Any]) -> Any:
+        """A grid fused from the ``final`` poses, or None when they moved no point 5 m out by more than
+        ``refuse_min_shift`` from ``poses`` (or there are none)."""
+        if self._spool is None or final is None or final.shape != poses.shape or len(self._spool) != len(poses):
+            return None
+        dyaw = np.abs(np.angle(np.exp(1j * (final[:, 2] - poses[:, 2]))))
+        shift = np.hypot(*(final[:, :2] - poses[:, :2]).T) + 5.0 * dyaw
+        if not shift.size or float(shift.max()) <= self._min_shift:
+            return None
+        grid = new_grid()
+        for pose, painted in zip(final, self._spool):
+            grid.integrate(pose, painted)
+        return grid
+
+    def close(self) -> None:
+        if self._spool is not None:
+            self._spool.close()
 
 
 def _pose_array(poses: array) -> NDArray[np.float64]:
@@ -642,29 +687,45 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
         busy += time.perf_counter() - t0
         to_fusion.send(done)
     to_fusion.send(None)
-    out.send(("poses", _pose_array(poses), registrar.stats, busy, peak_rss_mb(), time.process_time() - cpu0))
+    t0 = time.perf_counter()
+    final = registrar.close_loops()  # None without loop closure
+    busy += time.perf_counter() - t0
+    to_fusion.send(final)
+    out.send(("poses", _pose_array(poses) if final is None else final, registrar.stats, busy, peak_rss_mb(),
+              time.process_time() - cpu0))
 
 
-def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...]) -> None:
+def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...],
+                 reg_cfg: dict[str, Any]) -> None:
     # fusion may fall behind (its pipe is bounded); registration is the critical path
     with contextlib.suppress(OSError):
         os.nice(5)
     from .grid import SemanticGrid
     from .grid.consistency import EndpointSample
 
-    grid = SemanticGrid(GridConfig.model_validate(cfg), class_names)
+    grid_cfg = GridConfig.model_validate(cfg)
+    grid = SemanticGrid(grid_cfg, class_names)
     sample = EndpointSample()
+    refuse = _Refusion(RegistrationConfig.model_validate(reg_cfg))
     out.send(("ready",))
     cpu0 = time.process_time()
     busy = 0.0
-    n = 0
-    while (batch := inbox.recv()) is not None:
+    poses = array("d")
+    try:
+        while (batch := inbox.recv()) is not None:
+            t0 = time.perf_counter()
+            for pose, painted in batch:
+                grid.integrate(pose, painted)
+                refuse.keep(painted)
+                sample.add(len(poses) // 3, painted)
+                poses.extend(np.asarray(pose, np.float64).tolist())
+            busy += time.perf_counter() - t0
+        final = inbox.recv()  # the poses loop closure corrected (None: as registered)
         t0 = time.perf_counter()
-        for pose, painted in batch:
-            grid.integrate(pose, painted)
-            sample.add(n, painted)
-            n += 1
+        grid = refuse.fuse_again(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names)) or grid
         busy += time.perf_counter() - t0
+    finally:
+        refuse.close()
     cpu = time.process_time() - cpu0
     _send_large(out, grid.layers())
     out.send(("endpoints", *sample.base_points))
@@ -687,7 +748,8 @@ class MapperWorkers:
             self._reg = self._group.add("semmap-register", "registration", _registration_body, scans_r, fuse_w,
                                         reg_cfg.model_dump(mode="json"))
             self._fuse = self._group.add("semmap-fusion", "fusion", _fusion_body, fuse_r,
-                                         grid_cfg.model_dump(mode="json"), tuple(class_names))
+                                         grid_cfg.model_dump(mode="json"), tuple(class_names),
+                                         reg_cfg.model_dump(mode="json"))
             self._group.start()
         except BaseException:
             self._group.close()
@@ -698,8 +760,8 @@ class MapperWorkers:
         # (in icp mode: no Kalman filter to build, so its libraries stay out of this process)
         from .register import Registrar
 
-        self._preparer = Registrar(reg_cfg.model_copy(update={"mode": "icp"})) if reg_cfg.mode != "odometry" \
-            else None
+        self._preparer = Registrar(reg_cfg.model_copy(update={"mode": "icp", "loop_closure": LoopClosureConfig()})) \
+            if reg_cfg.mode != "odometry" or reg_cfg.loop_closure.enabled else None
 
     def wait_ready(self) -> None:
         """Block until both workers have loaded their libraries (start-up is not counted as work)."""

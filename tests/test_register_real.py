@@ -184,3 +184,30 @@ def test_every_build_scores_its_consistency(demo_map):
     # the demo's registration is good: nearly every return lands on a wall, walls one or two cells thick
     assert c.endpoints_on_map > 0.9
     assert 0.04 <= c.wall_thickness_m <= 0.1
+
+
+# ---------------------------------------------------------------------------------------
+# Loop closure's re-fusion: the painted scans kept on disk
+
+
+def test_the_scan_spool_gives_back_every_scan_with_its_labels():
+    from semmap.grid.spool import ScanSpool
+
+    rng = np.random.default_rng(3)
+    scans = [synthetic_scan((0.1 * i, 0.0, 0.05 * i), rng, stamp_ns=i, movers=[(1.0, 0.5)]) for i in range(4)]
+    scans[2] = PaintedScan(stamp_ns=2, origin=scans[2].origin, points=scans[2].points, hit=scans[2].hit,
+                           mobility=scans[2].mobility, class_id=scans[2].class_id, class_names=("person",),
+                           instance=np.arange(scans[2].hit.size, dtype=np.int32))
+    spool = ScanSpool()
+    for s in scans:
+        spool.append(s)
+    back = list(spool)
+    spool.close()
+    assert len(back) == 4
+    for a, b in zip(scans, back):
+        assert a.stamp_ns == b.stamp_ns and a.class_names == b.class_names
+        np.testing.assert_allclose(b.points, a.points, atol=1e-5)  # float32 on disk: micrometres at 20 m
+        np.testing.assert_array_equal(b.hit, a.hit)
+        np.testing.assert_array_equal(b.mobility, a.mobility)
+        np.testing.assert_array_equal(b.class_id, a.class_id)
+    np.testing.assert_array_equal(back[2].instance, scans[2].instance)

@@ -92,6 +92,19 @@ class Registrar:
     def __init__(self, cfg: RegistrationConfig) -> None:
         self.cfg = cfg
         self._matcher: KissMatcher | None = None if cfg.mode == "odometry" else KissMatcher(cfg)
+        # loop closure keeps keyframes' points: in odometry mode a matcher down-samples them and does no more
+        self._sampler: KissMatcher | None = self._matcher if self._matcher is not None or not \
+            cfg.loop_closure.enabled else KissMatcher(cfg)
+        self._closer: Any = None
+        self._loop_stats: dict[str, Any] | None = None
+        if cfg.loop_closure.enabled:
+            from .loops import LoopCloser, LoopConfig
+
+            lc = cfg.loop_closure
+            self._closer = LoopCloser(LoopConfig(
+                keyframe_distance=lc.keyframe_distance, keyframe_angle=lc.keyframe_angle,
+                min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
+                descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance), cfg)
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
         self._pose: NDArray[np.float64] | None = None  # last returned pose (map frame)
         self._velocity = _ZERO.copy()  # last increment, for the constant-velocity guess
@@ -133,6 +146,8 @@ class Registrar:
         if self._ekf is not None:
             out["odometry_noise_scale_max"] = {"translation": round(float(self._max_scale[0]), 2),
                                                "rotation": round(float(self._max_scale[1]), 2)}
+        if self._loop_stats is not None:
+            out["loop_closure"] = self._loop_stats
         out["seconds"] = round(self._seconds, 3)
         out["scans_per_s"] = round(self._counts["scans"] / self._seconds, 1) if self._seconds > 0 else None
         return out
@@ -150,12 +165,13 @@ class Registrar:
         """The stateless first step of :meth:`register`: select and down-sample the scan's points.
 
         It may run in another process (the build pipeline does it beside the painter) and its
-        result be passed to :meth:`register` as ``prepared``. None in ``odometry`` mode.
+        result be passed to :meth:`register` as ``prepared``. None in ``odometry`` mode without
+        loop closure.
         """
-        if self._matcher is None:
+        if self._sampler is None:
             return None
         pts, used, dynamic = self._select(scan)
-        return _Prepared(self._matcher.prepare(pts), used, dynamic)
+        return _Prepared(self._sampler.prepare(pts), used, dynamic)
 
     def register(self, scan: PaintedScan, odom_pose: ArrayLike | None, prepared: Any = None) -> NDArray[np.float64]:
         """Return the base_link pose (x, y, yaw) in the map frame for this scan.
@@ -171,10 +187,10 @@ class Registrar:
         odom = _as_pose(odom_pose, "odom_pose")
         if odom is None:
             self._counts["odom_missing"] += 1
-        if self.cfg.mode == "odometry":
-            pose = self._odometry_step(odom)
-        else:
-            pose = self._scan_step(scan, odom, prepared if prepared is not None else self.prepare(scan))
+        prep = prepared if prepared is not None else self.prepare(scan)
+        pose = self._odometry_step(odom) if self.cfg.mode == "odometry" else self._scan_step(scan, odom, prep)
+        if self._closer is not None and prep is not None:
+            self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
         self._pose = pose
@@ -183,6 +199,19 @@ class Registrar:
         self._counts["scans"] += 1
         self._seconds += time.perf_counter() - t0
         return pose.copy()
+
+    def close_loops(self) -> NDArray[np.float64] | None:
+        """With ``loop_closure.enabled``: solve the pose graph of every scan registered so far and return
+        the corrected poses (N, 3), one per :meth:`register` call; its counters join :attr:`stats`
+        (``loop_closure``). None without loop closure."""
+        if self._closer is None:
+            return None
+        t0 = time.perf_counter()
+        result = self._closer.optimise()
+        self._seconds += time.perf_counter() - t0
+        self._loop_stats = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in result.stats.items()}
+        self._loop_stats["loops"] = [list(map(int, ab)) for ab in result.loops]
+        return np.asarray(result.poses, np.float64).reshape(-1, 3)
 
     # -- modes ---------------------------------------------------------------------------
     def _odometry_step(self, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:

@@ -576,11 +576,11 @@ class EkfConfig(_Model):
                                                                 "icp_point_std: its floor)")
     icp_yaw_std: float = Field(0.001, gt=0, le=10, description="ICP heading measurement std, rad (with "
                                                                 "icp_point_std: its floor)")
-    icp_point_std: float = Field(0.05, ge=0, le=10, description="residual std of one matched point, m: ICP's "
-                                                                 "covariance is this² times the inverse of the "
-                                                                 "match's point-to-line Hessian, so a corridor "
-                                                                 "leaves the position along it to odometry; 0: "
-                                                                 "the fixed icp_xy_std and icp_yaw_std")
+    icp_point_std: float = Field(0.0, ge=0, le=10, description="residual std of one matched point, m: ICP's "
+                                                                "covariance is this² times the inverse of the "
+                                                                "match's point-to-line Hessian; 0: icp_xy_std and "
+                                                                "icp_yaw_std, with the direction a degenerate "
+                                                                "match (a corridor) cannot see left to odometry")
     degenerate_ratio: float = Field(0.05, ge=0, le=1, description="a match is degenerate (a corridor, one wall) "
                                                                    "when its Hessian's weakest direction of "
                                                                    "translation has less than this share of the "

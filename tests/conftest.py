@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -53,3 +54,19 @@ def demo_map(demo_tour, tmp_path_factory):
     from semmap.pipeline import build
 
     return build(demo_tour.out, tmp_path_factory.mktemp("maps") / "demo")
+
+
+def wait_until_catches(pid: int, sig: int, timeout: float = 30.0) -> None:
+    """Wait until process ``pid`` catches ``sig`` (Linux: SigCgt in /proc/PID/status), so a signal sent
+    then tests semmap's handling, not how fast a loaded machine starts Python."""
+    status = Path(f"/proc/{pid}/status")
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            caught = next(int(line.split()[1], 16) for line in status.read_text().splitlines()
+                          if line.startswith("SigCgt:"))
+        except (OSError, StopIteration):
+            return  # not Linux, or already gone: the plain sleep of the caller stands
+        if caught >> (int(sig) - 1) & 1:
+            return
+        time.sleep(0.05)

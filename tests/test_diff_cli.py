@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from conftest import wait_until_catches
 
 import semmap
 from semmap.cli.main import main
@@ -181,7 +182,9 @@ def test_a_signal_during_a_long_diff_leaves_a_whole_folder_or_none(tmp_path, sig
     proc = subprocess.Popen([sys.executable, "-m", "semmap", "diff", str(tmp_path / "a.yaml"),
                              str(tmp_path / "b.yaml"), "--out", str(out), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    time.sleep(2.0)  # the imports, then the alignment
+    # semmap's main() running (it catches SIGTERM from then on): on a loaded machine the imports take seconds
+    wait_until_catches(proc.pid, signal.SIGTERM)
+    time.sleep(1.0)  # the imports, then the alignment
     proc.send_signal(sig)
     try:
         _, err = proc.communicate(timeout=30)

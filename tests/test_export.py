@@ -319,13 +319,16 @@ def test_a_signal_during_a_long_export_leaves_a_whole_folder_or_none(folder, tmp
     import sys
     import time
 
+    from conftest import wait_until_catches
+
     big = tmp_path / "big"
     _big_session(folder, big)
     out = tmp_path / "exp"
     proc = subprocess.Popen([sys.executable, "-m", "semmap", "export", str(big), "--out", str(out), "--straighten",
                              "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
-    time.sleep(3.0)  # the imports, reading the session, then the layers
+    wait_until_catches(proc.pid, signal.SIGTERM)  # semmap's main() running: the imports are done
+    time.sleep(1.5)  # reading the session, then the layers
     proc.send_signal(sig)
     try:
         _, err = proc.communicate(timeout=30)

@@ -50,9 +50,7 @@ def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]
         rows.append({"log": name, "mode": "odometry alone (imported, no build)", "seconds": None, **e.as_dict()})
         for mode in modes:
             cfg = work / name / f"{mode}.yaml"
-            # "fused+fit": the default mode with ekf.fit_margin 0 (ICP beyond the gate taken where it fits better)
-            cfg.write_text("registration: {mode: fused, ekf: {fit_margin: 0.0}}\n" if mode == "fused+fit"
-                           else f"registration: {{mode: {mode}}}\n")
+            cfg.write_text(_config(mode))
             out = work / name / f"map_{mode}"
             t0 = time.perf_counter()
             assert main(["build", str(tour), "--out", str(out), "--config", str(cfg), "--force", "-q"]) == 0
@@ -65,6 +63,18 @@ def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]
             print(f"  {name} {mode}: RPE1 {e.rpe[1]['trans_mean']:.3f} m, RPE10 {e.rpe[10]['trans_mean']:.3f} m, "
                   f"ATE {e.ate_rmse:.2f} m", flush=True)
     return rows
+
+
+def _config(mode: str) -> str:
+    """The build config of a mode: ``odometry``, ``icp`` or ``fused``; ``+fit``: ``ekf.fit_margin 0`` (ICP
+    beyond the gate taken where the scan fits the map better); ``+loops``: loop closure on."""
+    base, *extras = mode.split("+")
+    reg = [f"mode: {base}"]
+    if "fit" in extras:
+        reg.append("ekf: {fit_margin: 0.0}")
+    if "loops" in extras:
+        reg.append("loop_closure: {enabled: true}")
+    return "registration: {" + ", ".join(reg) + "}\n"
 
 
 def table(rows: list[dict]) -> str:
@@ -83,14 +93,43 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def picture(work: Path, logs: list[str], modes: list[str], rows: list[dict], path: Path) -> None:
+    """The maps of ``modes`` side by side, one row per log, titled with their RPE at step 10 and ATE."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(logs), len(modes), figsize=(4.2 * len(modes), 4.2 * len(logs)), squeeze=False)
+    for i, name in enumerate(logs):
+        for j, mode in enumerate(modes):
+            ax = axes[i][j]
+            ax.axis("off")
+            img = cv2.imread(str(work / name / f"map_{mode}" / "map.pgm"), cv2.IMREAD_GRAYSCALE)
+            r = next((x for x in rows if x["log"] == name and x["mode"] == mode), None)
+            if img is None or r is None:
+                continue
+            ax.imshow(img, cmap="gray", vmin=0, vmax=255)
+            ax.set_title(f"{name}, {mode}\nRPE δ=10 {r['rpe']['10']['trans_mean']:.3f} m, ATE {r['ate_rmse']:.2f} m",
+                         fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=REPO.parent / "shared" / "data" / "carmen")
     ap.add_argument("--work", type=Path, default=Path("/tmp/semmap-bench-carmen"))
     ap.add_argument("--logs", nargs="+", default=list(LOGS), choices=list(LOGS))
-    ap.add_argument("--modes", nargs="+", default=["odometry", "icp", "fused", "fused+fit"],
-                    help="registration modes; fused+fit: fused with ekf.fit_margin 0")
+    ap.add_argument("--modes", nargs="+",
+                    default=["odometry", "icp", "fused", "odometry+loops", "icp+loops", "fused+loops"],
+                    help="registration modes (odometry, icp, fused); +fit: ekf.fit_margin 0; +loops: loop closure")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--picture", type=Path, help="draw the maps of --picture-modes side by side into this PNG")
+    ap.add_argument("--picture-modes", nargs="+", default=["fused", "fused+loops"])
     args = ap.parse_args()
     if not args.data.is_dir():
         print(f"{args.data}: no CARMEN logs here", file=sys.stderr)
@@ -101,6 +140,9 @@ def main() -> int:
     print(table(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))
+    if args.picture:
+        picture(args.work, args.logs, [m for m in args.picture_modes if m in args.modes], rows, args.picture)
+        print(f"\npicture: {args.picture}")
     return 0
 
 

@@ -46,11 +46,12 @@ def run(data: Path, work: Path, bags: list[str], modes: list[str]) -> list[dict]
             r = build(data / f"{bag}.bag", out, overrides=MODES[mode], force=True)
             s = json.loads(r.summary.to_json())
             reg = s["registration"]
+            loops = reg.get("loop_closure")
             rows.append({"bag": bag, "mode": mode, "seconds": round(time.perf_counter() - t0, 1),
                          **s["consistency"], "icp_rejected": reg.get("icp_rejected"),
                          "filter_resets": reg.get("filter_resets"), "icp_degenerate": reg.get("icp_degenerate"),
-                         "loops": reg.get("loop_closure", {}).get("accepted") if isinstance(reg.get("loop_closure"), dict)
-                         else None, "map": str(out / "map.pgm")})
+                         "loops": loops.get("accepted") if isinstance(loops, dict) else None,
+                         "map": str(out / "map.pgm")})
             print(f"  {bag} {mode}: {100 * s['consistency']['endpoints_on_map']:.1f} % on the map, walls "
                   f"{100 * s['consistency']['wall_thickness_m']:.1f} cm", flush=True)
     return rows
@@ -64,7 +65,8 @@ def table(rows: list[dict], modes: list[str]) -> str:
         cells = []
         for m in modes:
             r = next((x for x in rows if x["bag"] == b and x["mode"] == m), None)
-            cells.append("" if r is None else f"{100 * r['endpoints_on_map']:.1f} % · {100 * r['wall_thickness_m']:.1f} cm")
+            cells.append("" if r is None else
+                         f"{100 * r['endpoints_on_map']:.1f} % · {100 * r['wall_thickness_m']:.1f} cm")
         lines.append(f"| {b} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

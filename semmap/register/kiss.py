@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..config import RegistrationConfig
 from ..geometry import se2_to_se3, se3_inverse, se3_to_se2
 
-__all__ = ["KissMatcher", "PreparedScan", "match_information"]
+__all__ = ["KissMatcher", "PreparedScan", "line_normals", "match_information"]
 
 log = logging.getLogger(__name__)
 
@@ -47,26 +47,17 @@ class PreparedScan:
     information: NDArray[np.float64] = field(default_factory=lambda: np.zeros((3, 3)))
 
 
-def match_information(points: NDArray[np.float64], surface: NDArray[np.float64], radius: float,
-                      neighbours: int = 8, max_flatness: float = 0.2) -> NDArray[np.float64]:
-    """The Hessian ``Σ Jᵢᵀ Jᵢ`` of a point-to-line match of ``points`` (N, 2), in their own frame.
-
-    Each point's line is fitted to the ``surface`` points (the same scan, denser) within
-    ``radius``: the normal ``n`` is the direction of least spread. A point on a line moves the
-    residual ``n · (δt + δθ · p⊥)`` for a small motion ``(δt, δθ)`` of the scan, so
-    ``J = (nx, ny, n · p⊥)`` with ``p⊥ = (-py, px)``. Points whose neighbourhood is no line (fewer
-    than 3 neighbours, or spread across it above ``max_flatness`` of the spread along it: a chair
-    leg, a corner, clutter) are left out; they constrain no direction reliably.
-
-    The Hessian is what ICP's solution is sure of: its inverse times the residual variance is
-    the pose covariance, and a corridor, whose lines all run one way, gives a Hessian with a
-    (near-)zero eigenvalue along it. The base frame does not depend on the pose, so this is
-    computed once per scan, beside the down-sampling.
-    """
+def line_normals(points: NDArray[np.float64], surface: NDArray[np.float64], radius: float,
+                 neighbours: int = 8, max_flatness: float = 0.2) -> NDArray[np.float64]:
+    """The normal (N, 2) of the line each of ``points`` lies on, fitted to the ``surface`` points within
+    ``radius``: the direction of least spread. NaN where the neighbourhood is no line (fewer than 3
+    neighbours, or a spread across above ``max_flatness`` of the spread along: a chair leg, a corner,
+    clutter)."""
     pts = np.asarray(points, np.float64).reshape(-1, 2)
     surf = np.asarray(surface, np.float64).reshape(-1, 2)
+    out = np.full(pts.shape, np.nan)
     if pts.shape[0] == 0 or surf.shape[0] < 3:
-        return np.zeros((3, 3))
+        return out
     from scipy.spatial import cKDTree
 
     k = min(neighbours, surf.shape[0])
@@ -85,11 +76,27 @@ def match_information(points: NDArray[np.float64], surface: NDArray[np.float64],
     disc = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy ** 2, 0.0))
     lo, hi = half_tr - disc, half_tr + disc
     theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # the direction of most spread (the line)
-    n = np.stack([-np.sin(theta), np.cos(theta)], axis=1)  # across it
     ok = (count >= 3) & (hi > 0) & (lo <= max_flatness ** 2 * hi)
+    out[ok] = np.stack([-np.sin(theta[ok]), np.cos(theta[ok])], axis=1)  # across it
+    return out
+
+
+def match_information(points: NDArray[np.float64], normals: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The Hessian ``Σ Jᵢᵀ Jᵢ`` of a point-to-line match of ``points`` (N, 2) on lines of ``normals`` (N, 2;
+    NaN: on no line, left out), in the points' own frame.
+
+    A point on a line moves the residual ``n · (δt + δθ · p⊥)`` for a small motion ``(δt, δθ)`` of
+    the scan, so ``J = (nx, ny, n · p⊥)`` with ``p⊥ = (-py, px)``. The Hessian is what ICP's solution
+    is sure of: its inverse times the residual variance is the pose covariance, and a corridor, whose
+    lines all run one way, gives a Hessian with a (near-)zero eigenvalue along it. The base frame does
+    not depend on the pose, so this is computed once per scan, beside the down-sampling.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 2)
+    ok = np.isfinite(nrm[:, 0])
     if not np.any(ok):
         return np.zeros((3, 3))
-    n, p = n[ok], pts[ok]
+    n, p = nrm[ok], pts[ok]
     j = np.column_stack([n[:, 0], n[:, 1], -n[:, 0] * p[:, 1] + n[:, 1] * p[:, 0]])
     return j.T @ j
 
@@ -144,8 +151,9 @@ class KissMatcher:
             scale = float(source.shape[0] / self._max_source)
             source = self._down(map_points, self._voxel * 1.5 * scale)
         source = np.ascontiguousarray(source, dtype=np.float64)
+        normals = line_normals(source[:, :2], map_points[:, :2], 2.0 * self._voxel)
         return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64), source,
-                            match_information(source[:, :2], map_points[:, :2], 2.0 * self._voxel))
+                            match_information(source[:, :2], normals))
 
     @property
     def map_empty(self) -> bool:

@@ -5,41 +5,48 @@ Scan-to-map registration drifts; on a long tour the walls of a place seen twice 
 the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
 
 * **Keyframes.** A scan becomes a keyframe after ``keyframe_distance`` m or
-  ``keyframe_angle`` rad since the last one. Only keyframes keep points (float32, KISS-ICP's
-  map down-sampling); every other scan keeps its keyframe's number and its pose relative to
-  it (four numbers), so memory stays small on long tours and the graph has keyframe nodes only.
+  ``keyframe_angle`` rad since the last one. Only keyframes keep points (float32: KISS-ICP's
+  map down-sampling and each point's line-normal direction); every other scan keeps its
+  index, keyframe and pose relative to it (36 bytes), so memory stays small on long tours
+  and the graph has keyframe nodes only.
 * **Place recognition**, each time a keyframe is added, among keyframes at least
-  ``min_separation`` keyframes older:
+  ``min_separation`` keyframes older, best first:
 
+  - tracked: the last loop found, carried forward by the registration's motion (within
+    ``track_keyframes``): on a revisit, each keyframe proposes the next with a guess good
+    to centimetres, whatever the drift;
   - by position: within ``search_radius`` + ``drift_per_m`` · (distance driven since them)
     of the drifted estimate;
   - with ``descriptor``, by a scan-context-style polar descriptor (rings × sectors; a cell
     is 1 inside the farthest return of its sector, so the descriptor is the visible area,
     which changes smoothly with position). Its ring key (share of sectors reaching each
-    ring) is rotation invariant and pre-selects ``descriptor_preselect`` keyframes; the
-    column-shift comparison (1 - mean column cosine) ranks them and yields a yaw guess.
+    ring) is rotation invariant and pre-selects ``descriptor_preselect`` keyframes (brute
+    force: exact, and at 20 dimensions as fast as a KD-tree); the column-shift comparison
+    (1 - mean column cosine) ranks them and yields a yaw guess, independent of the drift.
 
-* **Verification** against a submap of the candidate and its ``submap_keyframes``
-  neighbours on each side (placed by the registration's relative poses): KISS-ICP
-  (:class:`~semmap.register.kiss.KissMatcher`) from the current relative estimate and,
-  for descriptor candidates, from the descriptor's yaw guess; then a point-to-line
-  refinement. A match is a loop when ``min_inliers`` of the query points lie within
-  ``inlier_distance`` of the submap and the point-to-line Hessian is well conditioned
-  (smallest / largest eigenvalue ≥ ``min_condition``, rotation scaled by the points' RMS
-  range): a corridor match that can slide is not a loop. The loop edge's covariance is
-  the Hessian's inverse scaled by the residual variance, counted as
-  ``loop_effective_points`` independent points (scan residuals are correlated). A loop
-  whose correction exceeds ``gate_factor`` times the search radius is implausible.
+  Candidates within ``submap_keyframes`` of each other are one place, verified once from
+  each of their guesses; at most ``max_candidates`` places per keyframe.
+* **Verification**: KISS-ICP (:class:`~semmap.register.kiss.KissMatcher`) against the
+  candidate and its ``submap_keyframes`` neighbours on each side (placed by the
+  registration's relative poses), from each guess; then a point-to-line Gauss-Newton fit
+  to the candidate keyframe alone (``refine_keyframes``: the registration's drift bends a
+  longer submap by centimetres at its far end). A match is a loop when ``min_inliers`` of
+  the query points lie within ``inlier_distance`` of the submap, the point-to-line Hessian
+  is well conditioned (smallest / largest eigenvalue ≥ ``min_condition``, rotation scaled
+  by the points' RMS range: a corridor match that can slide is not a loop), and the
+  correction it asks for is at most ``gate_factor`` times the search radius (a place that
+  only looks alike). The loop's covariance is the Hessian's inverse times the residual
+  variance, the query counted as ``loop_effective_points`` independent points (scan
+  residuals are correlated).
 * **Pose graph** (:func:`solve_pose_graph`): keyframe nodes; odometry edges between
   consecutive keyframes with the registration's relative poses and a covariance
   propagated from every step (the caller's information matrices, or a random-walk
-  default); loop edges. Solved by :func:`scipy.optimize.least_squares` with an analytic
-  sparse Jacobian, parametrised by the keyframes' increments along the chain (the first
-  node fixed), which keeps the problem well conditioned for the iterative LSMR solver.
-* **False loops**: the graph is solved with all loops, then with switchable constraints
-  (Sünderhauf & Protzel 2012; a switch in [0, 1] per loop, a prior that makes a loop more
-  off than on beyond χ² = ``switch_chi2``); loops switched off are dropped, and then,
-  one at a time, the loop with the largest χ² above ``reject_chi2``, re-solving each time.
+  default); loop edges. :func:`scipy.optimize.least_squares` with an analytic sparse
+  Jacobian (first node fixed), preconditioned by a sparse LDLᵀ factor of JᵀJ, from a robust
+  linear initial estimate (LAGO); see there.
+* **False loops**: a Cauchy kernel on each loop's χ², graduated from a wide scale down to
+  ``kernel_chi2`` over successive solves (iteratively re-weighted), then every loop whose
+  χ² still exceeds ``reject_chi2`` is dropped and the graph re-solved.
 
 Frames: poses are ``T_map_base`` as SE(2) ``(x, y, yaw)``; a loop or odometry measurement
 between keyframes i and j is ``T_i_j``; covariances are of a right perturbation (in the
@@ -73,6 +80,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
+_LINEAR_FLOOR = 20.0  # the linear estimate's Cauchy scale, in kernel_chi2 (it overstates χ²)
+_GNC_RATIO = 2.0  # the Cauchy scale shrinks by this factor between the nonlinear solves
+_RESTART_NFEV = 10  # least_squares evaluations before the preconditioner is renewed
 
 
 @dataclass(frozen=True)
@@ -91,14 +101,17 @@ class LoopConfig:
     descriptor_sectors: int = 60
     descriptor_range: float = 15.0  # m, outer radius of the descriptor
     descriptor_preselect: int = 10  # nearest ring keys compared column by column
-    descriptor_threshold: float = 0.15  # descriptor distance (1 - mean column cosine) below which a place matches
+    descriptor_threshold: float = 0.06  # descriptor distance (1 - mean column cosine) below which a place matches
     max_candidates: int = 3  # candidate places verified per new keyframe
     max_loops_per_keyframe: int = 1  # stop verifying a keyframe's candidates after this many loops
     # verification
     submap_keyframes: int = 5  # each side: the candidate's neighbours form the map a keyframe is matched against
+    refine_keyframes: int = 0  # each side: the final point-to-line fit is to these (drift bends a longer submap)
+    track_keyframes: int = 10  # the last loop found, carried forward this many keyframes, proposes the next
     min_points: int = 20  # fewer down-sampled points in the keyframe: not matched
     icp_threshold: float = 0.5  # m, KISS-ICP kernel σ for loop ICP (correspondences within 3σ)
     refine_iterations: int = 20  # point-to-line Gauss-Newton steps after KISS-ICP
+    max_query_points: int = 200  # the keyframe's points fitted and counted (evenly thinned to this many)
     min_inliers: float = 0.6  # share of the query points within inlier_distance of the submap after ICP
     inlier_distance: float = 0.1  # m
     min_condition: float = 0.05  # smallest / largest eigenvalue of the scaled point-to-line Hessian
@@ -110,31 +123,30 @@ class LoopConfig:
     odom_sigma_yaw: float = 0.001  # rad per step
     odom_sigma_xy_per_sqrt_m: float = 0.02  # m per √m driven
     odom_sigma_yaw_per_sqrt_m: float = 0.02  # rad per √m driven
-    odom_sigma_yaw_per_sqrt_rad: float = 0.02  # rad per √rad turned
+    odom_sigma_yaw_per_sqrt_rad: float = 0.01  # rad per √rad turned
     # robust solve
-    switchable: bool = True  # switchable constraints on loop edges
-    switch_chi2: float = 25.0  # χ² at which a loop's switch is half off
-    reject_chi2: float = 50.0  # after the solve, the worst loop above this χ² is dropped and the graph re-solved
+    kernel_chi2: float = 25.0  # scale (χ²) of the Cauchy kernel on loop edges
+    reject_chi2: float = 50.0  # after the solve, loops above this χ² are dropped and the graph re-solved
     max_rejection_rounds: int = 10
-    max_nfev: int = 100  # least_squares evaluations per solve
-    tolerance: float = 1e-10  # least_squares ftol / xtol
+    max_nfev: int = 50  # least_squares evaluations per solve
+    tolerance: float = 1e-6  # least_squares ftol, xtol and gtol
 
     def __post_init__(self) -> None:
         positive = ("keyframe_distance", "keyframe_angle", "descriptor_range", "icp_threshold",
-                    "inlier_distance", "loop_sigma_min", "loop_effective_points", "switch_chi2",
+                    "inlier_distance", "loop_sigma_min", "loop_effective_points", "kernel_chi2",
                     "reject_chi2", "tolerance")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"LoopConfig.{name} must be > 0, got {getattr(self, name)}")
         at_least_one = ("descriptor_rings", "descriptor_sectors", "descriptor_preselect", "max_loops_per_keyframe",
-                        "min_points", "max_nfev")
+                        "min_points", "max_query_points", "max_nfev")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"LoopConfig.{name} must be >= 1, got {getattr(self, name)}")
         non_negative = ("min_separation", "search_radius", "drift_per_m", "descriptor_threshold", "max_candidates",
-                        "submap_keyframes", "refine_iterations", "min_condition", "gate_factor", "odom_sigma_xy",
-                        "odom_sigma_yaw", "odom_sigma_xy_per_sqrt_m", "odom_sigma_yaw_per_sqrt_m",
-                        "odom_sigma_yaw_per_sqrt_rad", "max_rejection_rounds")
+                        "submap_keyframes", "refine_keyframes", "track_keyframes", "refine_iterations",
+                        "min_condition", "gate_factor", "odom_sigma_xy", "odom_sigma_yaw", "odom_sigma_xy_per_sqrt_m",
+                        "odom_sigma_yaw_per_sqrt_m", "odom_sigma_yaw_per_sqrt_rad", "max_rejection_rounds")
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"LoopConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -152,7 +164,7 @@ class LoopResult:
 
     ``poses``: (N, 3) corrected ``T_map_base`` per :meth:`LoopCloser.add` call, in order;
     ``stats``: counters and timings (see :meth:`LoopCloser.optimise`);
-    ``loops``: the accepted loops as (scan index a, scan index b), a older than b.
+    ``loops``: the loops kept, as the scan indices of their two keyframes (a older than b).
     """
 
     poses: F64
@@ -235,48 +247,76 @@ class _Match:
     rms: float  # point-to-line RMS of the inliers, m
 
 
-class _Submap:
-    """Submap points with a KD-tree and line normals (PCA of each point's neighbours)."""
+def _line_normals(points: F64, neighbours: int = 6, max_spread: float = 0.5, max_flatness: float = 0.05) -> F64:
+    """The direction (rad) of each point's line normal, NaN where its neighbourhood is no line.
 
-    def __init__(self, points: F64, neighbours: int = 6, max_spread: float = 0.5) -> None:
+    PCA of the ``neighbours`` nearest points (closed form in 2D); a line when they lie within
+    ``max_spread`` m and spread across it by at most ``max_flatness`` of the spread along it.
+    """
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    if n < 3:
+        return np.full(n, np.nan)
+    k = min(neighbours, n)
+    d, idx = cKDTree(points).query(points, k=k)
+    nb = points[idx.reshape(n, k)]
+    c = nb - nb.mean(axis=1, keepdims=True)
+    sxx = np.mean(c[..., 0] ** 2, axis=1)
+    syy = np.mean(c[..., 1] ** 2, axis=1)
+    sxy = np.mean(c[..., 0] * c[..., 1], axis=1)
+    half = 0.5 * (sxx + syy)
+    root = np.sqrt((0.5 * (sxx - syy)) ** 2 + sxy**2)
+    flat = (half - root) <= max_flatness * np.maximum(half + root, 1e-12)
+    near = d.reshape(n, k)[:, -1] <= max_spread
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # across the principal direction
+    return np.where(flat & near, angle, np.nan)
+
+
+class _Submap:
+    """Points with their line normals (directions, NaN: no line) and a KD-tree."""
+
+    def __init__(self, points: F64, normal_angles: F64) -> None:
         from scipy.spatial import cKDTree
 
         self.points = points
         self.tree = cKDTree(points)
-        k = min(neighbours, points.shape[0])
-        d, idx = self.tree.query(points, k=k)
-        d = d.reshape(points.shape[0], k)
-        idx = idx.reshape(points.shape[0], k)
-        nb = points[idx]  # (M, k, 2)
-        centred = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("mki,mkj->mij", centred, centred) / k
-        w, v = np.linalg.eigh(cov)  # ascending
-        self.normals = v[:, :, 0]
-        # a line: the neighbours spread along one direction, and they are near
-        self.good = (w[:, 0] <= 0.05 * np.maximum(w[:, 1], 1e-12)) & (d[:, -1] <= max_spread) & (k >= 3)
+        self.good = np.isfinite(normal_angles)
+        a = np.where(self.good, normal_angles, 0.0)
+        self.normals = np.column_stack([np.cos(a), np.sin(a)])
 
 
-def _refine(sub: _Submap, src: F64, guess: F64, cfg: LoopConfig) -> _Match:
-    """Point-to-line ICP (Cauchy weights) of ``src`` onto ``sub`` from ``guess``; the match's quality."""
+def _correspondences(sub: _Submap, pts: F64, pose: F64, radius: float
+                     ) -> tuple[F64, F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
+    """Point-to-line residuals of ``pts`` placed at ``pose`` against ``sub`` within ``radius``.
+
+    Returns (residuals (U,), Jacobian (U, 3) with respect to (x, y, yaw) added to ``pose``,
+    the used points relative to the pose's origin (U, 2), used mask (N,), found mask (N,)).
+    """
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    v_all = pts @ np.array([[c, s], [-s, c]])  # rotated into the submap's frame
+    q = v_all + pose[:2]
+    d, idx = sub.tree.query(q, distance_upper_bound=radius)
+    found = d < np.inf
+    use = found.copy()
+    use[found] = sub.good[idx[found]]
+    i = idx[use]
+    nrm = sub.normals[i]
+    v = v_all[use]
+    diff = q[use] - sub.points[i]
+    r = nrm[:, 0] * diff[:, 0] + nrm[:, 1] * diff[:, 1]
+    jac = np.empty((r.shape[0], 3))
+    jac[:, :2] = nrm
+    jac[:, 2] = nrm[:, 1] * v[:, 0] - nrm[:, 0] * v[:, 1]
+    return r, jac, v, use, found
+
+
+def _align(sub: _Submap, pts: F64, guess: F64, cfg: LoopConfig) -> F64:
+    """Point-to-line ICP (Gauss-Newton, Cauchy weights) of ``pts`` onto ``sub`` from ``guess``."""
     pose = np.asarray(guess, dtype=np.float64).copy()
-    d_max = 3.0 * cfg.inlier_distance
     c = 0.5 * cfg.inlier_distance
-
-    def linearise(p: F64, radius: float) -> tuple[F64, F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
-        q = se2_apply(p, src)
-        d, idx = sub.tree.query(q, distance_upper_bound=radius)
-        found = np.isfinite(d)
-        use = found.copy()
-        use[found] = sub.good[idx[found]]
-        i = idx[use]
-        nrm = sub.normals[i]
-        r = np.sum(nrm * (q[use] - sub.points[i]), axis=1)
-        v = q[use] - p[:2]
-        jac = np.column_stack([nrm, nrm[:, 1] * v[:, 0] - nrm[:, 0] * v[:, 1]])
-        return r, jac, v, use, found
-
     for _ in range(cfg.refine_iterations):
-        r, jac, _, use, _ = linearise(pose, d_max)
+        r, jac, _, use, _ = _correspondences(sub, pts, pose, 3.0 * cfg.inlier_distance)
         if use.sum() < 3:
             break
         w = 1.0 / (1.0 + (r / c) ** 2)
@@ -288,15 +328,26 @@ def _refine(sub: _Submap, src: F64, guess: F64, cfg: LoopConfig) -> _Match:
             break
         pose = pose + step
         pose[2] = wrap_angle(float(pose[2]))
-        if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-5:
+        if math.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-4:
             break
+    return pose
 
-    r, jac, v, use, found = linearise(pose, cfg.inlier_distance)
+
+def _overlap(sub: _Submap, pts: F64, pose: F64, cfg: LoopConfig) -> float:
+    """The share of ``pts`` at ``pose`` within ``inlier_distance`` of ``sub``."""
+    d, _ = sub.tree.query(se2_apply(pose, pts), distance_upper_bound=cfg.inlier_distance)
+    return float(np.isfinite(d).mean()) if d.size else 0.0
+
+
+def _evaluate(sub: _Submap, pts: F64, pose: F64, cfg: LoopConfig) -> _Match:
+    """Inlier share, conditioning and covariance of ``pts`` at ``pose`` on ``sub``."""
+    r, jac, v, use, found = _correspondences(sub, pts, pose, cfg.inlier_distance)
     inliers = float(found.mean()) if found.size else 0.0
     n = int(use.sum())
     if n < 3:
         return _Match(pose, inliers, 0.0, np.eye(3), float("inf"))
     h = jac.T @ jac / n
+    # rotation in metres at the points' RMS range, so that the eigenvalues compare
     scale = math.sqrt(float(np.mean(np.sum(v * v, axis=1)))) or 1.0
     d = np.array([1.0, 1.0, 1.0 / scale])
     ev = np.linalg.eigvalsh(h * d[:, None] * d[None, :])
@@ -307,8 +358,7 @@ def _refine(sub: _Submap, src: F64, guess: F64, cfg: LoopConfig) -> _Match:
         cov_add = sigma2 * np.linalg.inv(h) / cfg.loop_effective_points
     except np.linalg.LinAlgError:
         return _Match(pose, inliers, 0.0, np.eye(3), rms)
-    # (t, yaw) additive -> right perturbation (t = R ρ)
-    a = _rot3(-pose[2])
+    a = _rot3(-pose[2])  # (t, yaw) added -> right perturbation (t = R ρ)
     return _Match(pose, inliers, condition, a @ cov_add @ a.T, rms)
 
 
@@ -361,149 +411,268 @@ def loop_chi2(poses: ArrayLike, loop_a: ArrayLike, loop_b: ArrayLike, loop_z: Ar
     return np.asarray(np.einsum("ei,eij,ej->e", e, np.asarray(loop_info, dtype=np.float64).reshape(-1, 3, 3), e))
 
 
-def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, loop_a: ArrayLike,
-                     loop_b: ArrayLike, loop_z: ArrayLike, loop_info: ArrayLike, *, switchable: bool = False,
-                     switch_chi2: float = 25.0, max_nfev: int = 100, tolerance: float = 1e-10,
-                     loss: str = "linear", f_scale: float = 1.0) -> tuple[F64, F64, dict[str, Any]]:
-    """Solve a pose graph whose nodes form a chain, with extra (loop) edges.
+def _linear_solve(n_nodes: int, a: NDArray[np.int64], b: NDArray[np.int64], target: F64, info: F64,
+                  fixed: F64) -> F64:
+    """Minimise Σ (x_b - x_a - target)ᵀ info (x_b - x_a - target) over node values x (dim d), x_0 = ``fixed``.
 
-    ``poses`` (K, 3): the initial node poses; node 0 stays fixed (gauge). ``odom_z`` (K-1, 3):
-    the measurement ``T_{i-1}_i`` of each chain edge, ``odom_info`` (K-1, 3, 3) its information.
-    ``loop_a``, ``loop_b`` (L,) node numbers, ``loop_z`` (L, 3) ``T_a_b``, ``loop_info`` (L, 3, 3).
-    With ``switchable``, each loop residual is multiplied by a switch s in [0, 1] with the prior
-    residual √switch_chi2 · (1 - s) (a loop is more off than on beyond χ² = switch_chi2).
+    ``target`` (E, d), ``info`` (E, d, d). One sparse direct solve of the normal equations.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
 
-    The unknowns are the chain's increments ``T_{i-1}_i``, with an analytic sparse Jacobian:
-    an odometry residual depends on its increment only, a loop (a, b) on the increments
-    a+1 … b. This is far better conditioned than absolute poses for LSMR, which
-    :func:`scipy.optimize.least_squares` uses with sparse Jacobians.
-    Returns (poses (K, 3), switches (L,) (ones without ``switchable``), solver info).
+    d = target.shape[1]
+    blk = np.arange(d)
+    ia = (d * a)[:, None] + blk  # (E, d)
+    ib = (d * b)[:, None] + blk
+    rows = np.concatenate([np.repeat(ia, d, axis=1), np.repeat(ib, d, axis=1),
+                           np.repeat(ia, d, axis=1), np.repeat(ib, d, axis=1)]).ravel()
+    cols = np.concatenate([np.tile(ia, d), np.tile(ib, d), np.tile(ib, d), np.tile(ia, d)]).ravel()
+    flat = info.reshape(-1, d * d)
+    h = coo_matrix((np.concatenate([flat, flat, -flat, -flat]).ravel(), (rows, cols)),
+                   shape=(d * n_nodes, d * n_nodes)).tocsc()
+    lt = np.einsum("eij,ej->ei", info, target)
+    g = np.zeros(d * n_nodes)
+    np.add.at(g, ib.ravel(), lt.ravel())
+    np.add.at(g, ia.ravel(), -lt.ravel())
+    free = h[d:, d:]
+    rhs = g[d:] - h[d:, :d] @ fixed
+    x = np.asarray(spsolve(free, rhs), dtype=np.float64).reshape(-1, d)
+    return np.vstack([fixed.reshape(1, d), x])
+
+
+def _linear_estimate(p0: F64, a: NDArray[np.int64], b: NDArray[np.int64], z: F64, cov: F64, n_chain: int,
+                     weights: F64) -> F64:
+    """Orientations, then positions, each by linear least squares (LAGO, Carlone et al. 2014).
+
+    The first ``n_chain`` edges are the chain, whose composed yaws fix each other edge's 2π
+    ambiguity. ``cov`` (E, 3, 3) covariances; ``weights`` (E,) scale the informations.
+    """
+    n = p0.shape[0]
+    chain_yaw = p0[0, 2] + np.concatenate([[0.0], np.cumsum(z[:n_chain, 2])])
+    turns = np.round((chain_yaw[b] - chain_yaw[a] - z[:, 2]) / (2.0 * np.pi))
+    dyaw = z[:, 2] + 2.0 * np.pi * turns
+    w_yaw = weights / np.maximum(cov[:, 2, 2], 1e-18)
+    yaw = _linear_solve(n, a, b, dyaw[:, None], w_yaw[:, None, None], p0[0, 2:3])[:, 0]
+    # t_b - t_a = R(yaw_a) z_t; error frame R(yaw_a + z_yaw)
+    ca, sa = np.cos(yaw[a]), np.sin(yaw[a])
+    dt = np.column_stack([ca * z[:, 0] - sa * z[:, 1], sa * z[:, 0] + ca * z[:, 1]])
+    rot = yaw[a] + z[:, 2]
+    c, s = np.cos(rot), np.sin(rot)
+    r = np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
+    info_xy = np.linalg.inv(cov[:, :2, :2])
+    info_w = np.einsum("eij,ejk,elk->eil", r, info_xy, r) * weights[:, None, None]
+    xy = _linear_solve(n, a, b, dt, info_w, p0[0, :2])
+    return np.column_stack([xy, yaw])
+
+
+def _edge_jacobians(pi: F64, pj: F64, z: F64) -> F64:
+    """(E, 3, 6) Jacobians of :func:`_edge_errors` with respect to (x_i, y_i, yaw_i, x_j, y_j, yaw_j)."""
+    ci, si = np.cos(pi[:, 2]), np.sin(pi[:, 2])
+    dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
+    tx, ty = ci * dx + si * dy, -si * dx + ci * dy  # Pj in Pi's frame
+    cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
+    c, s = np.cos(pi[:, 2] + z[:, 2]), np.sin(pi[:, 2] + z[:, 2])  # R_zᵀ R_iᵀ = R(-(yaw_i + yaw_z))
+    jac = np.zeros((pi.shape[0], 3, 6))
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 1, 0], jac[:, 1, 1] = -c, -s, s, -c
+    jac[:, 0, 3], jac[:, 0, 4], jac[:, 1, 3], jac[:, 1, 4] = c, s, -s, c
+    jac[:, 0, 2] = cz * ty - sz * tx  # R_zᵀ (ty, -tx)
+    jac[:, 1, 2] = -sz * ty - cz * tx
+    jac[:, 2, 2], jac[:, 2, 5] = -1.0, 1.0
+    return jac
+
+
+def _nonlinear_solve(p0: F64, a: NDArray[np.int64], b: NDArray[np.int64], z: F64, info: F64, max_nfev: int,
+                     tolerance: float) -> tuple[F64, dict[str, Any]]:
+    """:func:`scipy.optimize.least_squares` on the absolute poses (node 0 fixed), from ``p0``.
+
+    Analytic sparse Jacobian. LSMR, the solver least_squares uses for sparse problems, needs
+    many iterations on a pose graph (its normal matrix is a graph Laplacian); the unknowns are
+    therefore preconditioned by the exact LDLᵀ factor of JᵀJ at ``p0`` (SuperLU, fill-reducing
+    order): ``x = x0 + M (y - y0)`` with ``Mᵀ JᵀJ M = I``, which takes a handful of evaluations.
     """
     from scipy.optimize import least_squares
-    from scipy.sparse import csr_matrix
+    from scipy.sparse import csc_matrix, csr_matrix, identity
+    from scipy.sparse.linalg import LinearOperator, splu
 
+    n_nodes, n_edges = p0.shape[0], a.shape[0]
+    n_var = 3 * (n_nodes - 1)
+    u = _upper_factors(info)
+    three = np.arange(3)
+    rows = np.repeat(3 * np.arange(n_edges)[:, None] + three, 6, axis=1).ravel()  # (E, 3, 6) row-major
+    node_cols = np.concatenate([3 * (a[:, None] - 1) + three, 3 * (b[:, None] - 1) + three], axis=1)
+    cols = np.tile(node_cols, (1, 3)).ravel()
+    keep = cols >= 0  # node 0 is fixed
+    rows, cols = rows[keep], cols[keep]
+
+    def full(x: F64) -> F64:
+        return np.vstack([p0[:1], x.reshape(-1, 3)])
+
+    def residuals(x: F64) -> F64:
+        p = full(x)
+        return np.asarray(np.einsum("eij,ej->ei", u, _edge_errors(p[a], p[b], z)).ravel())
+
+    def jacobian(x: F64) -> Any:
+        p = full(x)
+        jac = np.einsum("eij,ejk->eik", u, _edge_jacobians(p[a], p[b], z)).ravel()[keep]
+        return csr_matrix((jac, (rows, cols)), shape=(3 * n_edges, n_var))
+
+    t0 = time.perf_counter()
+    x = p0[1:].ravel().copy()
+    nfev, status, cost = 0, 0, 0.0
+    while nfev < max_nfev:
+        # a preconditioner for the Jacobian at x; when the solution wanders far from it, LSMR
+        # slows down again, so least_squares is restarted with a fresh one every few steps
+        x0 = x
+        j0 = jacobian(x0)
+        h = csc_matrix(j0.T @ j0)
+        h = csc_matrix(h + identity(n_var, format="csc") * (1e-9 * max(float(h.diagonal().max()), 1e-12)))
+        lu = splu(h, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        if not np.array_equal(lu.perm_r, lu.perm_c):  # pragma: no cover - SuperLU pivoted off the diagonal
+            raise np.linalg.LinAlgError("the pose graph's normal matrix is not positive definite")
+        order = np.argsort(lu.perm_c)
+        inv_sqrt_d = 1.0 / np.sqrt(np.maximum(lu.U.diagonal(), 1e-300))
+        lower = splu(csc_matrix(lu.L), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                     options={"SymmetricMode": True})
+
+        def m_apply(y: F64, lower: Any = lower, order: Any = order, inv_sqrt_d: F64 = inv_sqrt_d) -> F64:
+            v = lower.solve(inv_sqrt_d * y, trans="T")  # M y = Pᵀ L⁻ᵀ D^-1/2 y
+            out = np.empty_like(v)
+            out[order] = v
+            return out
+
+        def mt_apply(r: F64, lower: Any = lower, order: Any = order, inv_sqrt_d: F64 = inv_sqrt_d) -> F64:
+            return np.asarray(inv_sqrt_d * lower.solve(r[order]))  # Mᵀ r = D^-1/2 L⁻¹ P r
+
+        # least_squares starts its trust region at |y0| (1 when y0 = 0): offset y so that the
+        # first radius is of the size of a Gauss-Newton step in these whitened units
+        y0 = np.full(n_var, 10.0 * float(np.linalg.norm(residuals(x0))) / math.sqrt(n_var) + 1.0)
+
+        def fun(y: F64, x0: F64 = x0, y0: F64 = y0, m_apply: Any = m_apply) -> F64:
+            return residuals(x0 + m_apply(y - y0))
+
+        def jac(y: F64, x0: F64 = x0, y0: F64 = y0, m_apply: Any = m_apply, mt_apply: Any = mt_apply
+                ) -> LinearOperator:
+            j = jacobian(x0 + m_apply(y - y0))
+            return LinearOperator(j.shape, matvec=lambda v: j @ m_apply(np.ravel(v)),
+                                  rmatvec=lambda r: mt_apply(j.T @ np.ravel(r)), dtype=np.float64)
+
+        res = least_squares(fun, y0, jac=jac, method="trf", tr_solver="lsmr",
+                            max_nfev=min(_RESTART_NFEV, max_nfev - nfev), ftol=tolerance, xtol=tolerance,
+                            gtol=tolerance)
+        x = x0 + m_apply(res.x - y0)
+        nfev += int(res.nfev)
+        status, cost = int(res.status), float(res.cost)
+        if status != 0:  # converged
+            break
+    p = full(x)
+    p[:, 2] = wrap_angle(p[:, 2])
+    return p, {"nfev": nfev, "status": status, "cost": cost, "seconds": time.perf_counter() - t0}
+
+
+def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, loop_a: ArrayLike,
+                     loop_b: ArrayLike, loop_z: ArrayLike, loop_info: ArrayLike, *, kernel_chi2: float = 25.0,
+                     reject_chi2: float = 50.0, max_rejection_rounds: int = 10, max_nfev: int = 50,
+                     tolerance: float = 1e-6) -> tuple[F64, NDArray[np.bool_], dict[str, Any]]:
+    """Solve a pose graph whose nodes form a chain, with extra (loop) edges; reject false loops.
+
+    ``poses`` (K, 3): the nodes' initial poses (the chain composed); node 0 stays fixed (gauge).
+    ``odom_z`` (K-1, 3): the measurement ``T_{i-1}_i`` of each chain edge, ``odom_info``
+    (K-1, 3, 3) its information. ``loop_a``, ``loop_b`` (L,) node numbers, ``loop_z`` (L, 3)
+    ``T_a_b``, ``loop_info`` (L, 3, 3).
+
+    1. A robust linear initial estimate: orientations then positions by sparse linear least
+       squares (LAGO, Carlone et al. 2014), the loops re-weighted with a Cauchy kernel on their
+       χ² whose scale shrinks to 20 × ``kernel_chi2`` (the linear estimate is approximate: true
+       loops can show χ² of tens there). It needs no initial guess, so a drift of tens of
+       degrees is no problem, and gross false loops lose their weight.
+    2. :func:`scipy.optimize.least_squares` from that estimate, a few steps at a time, the loops
+       weighted by the Cauchy kernel of their χ² in the previous solution, its scale halving
+       from 20 × ``kernel_chi2`` to ``kernel_chi2`` (graduated non-convexity).
+    3. Loops whose χ² still exceeds ``reject_chi2`` are dropped and the graph solved with the
+       rest at full weight, until none does (at most ``max_rejection_rounds`` times).
+
+    Returns (poses (K, 3), kept (L,) bool, info: ``nfev``, ``rejected_after_solve``, ``seconds``).
+    """
+    t0 = time.perf_counter()
     p0 = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    k = p0.shape[0]
+    n = p0.shape[0]
     zo = np.asarray(odom_z, dtype=np.float64).reshape(-1, 3)
+    io = np.asarray(odom_info, dtype=np.float64).reshape(-1, 3, 3)
     la = np.asarray(loop_a, dtype=np.int64).reshape(-1)
     lb = np.asarray(loop_b, dtype=np.int64).reshape(-1)
-    zl = np.asarray(loop_z, dtype=np.float64).reshape(-1, 3)
+    lz = np.asarray(loop_z, dtype=np.float64).reshape(-1, 3)
+    li = np.asarray(loop_info, dtype=np.float64).reshape(-1, 3, 3)
     n_loops = la.shape[0]
-    if zo.shape[0] != k - 1:
-        raise ValueError(f"{k} nodes need {k - 1} chain edges, got {zo.shape[0]}")
-    if n_loops and (np.any(la < 0) or np.any(lb >= k) or np.any(la == lb)):
+    if zo.shape[0] != n - 1 or io.shape[0] != n - 1:
+        raise ValueError(f"{n} nodes need {n - 1} chain edges, got {zo.shape[0]} and {io.shape[0]} informations")
+    if not (lb.shape[0] == lz.shape[0] == li.shape[0] == n_loops):
+        raise ValueError("loop_a, loop_b, loop_z and loop_info must have one entry per loop")
+    if n_loops and (np.any(la < 0) or np.any(lb < 0) or np.any(la >= n) or np.any(lb >= n) or np.any(la == lb)):
         raise ValueError("loop edges must join two different existing nodes")
-    if k < 2 or n_loops == 0:
-        return p0.copy(), np.ones(n_loops), {"nfev": 0, "cost": 0.0, "seconds": 0.0}
-    t0 = time.perf_counter()
-    # orient every loop forward (a < b): Z and the right-perturbation covariance at b become those of the inverse
-    flip = la > lb
-    if np.any(flip):
-        la, lb, zl = la.copy(), lb.copy(), zl.copy()
-        info_l = np.asarray(loop_info, dtype=np.float64).reshape(-1, 3, 3).copy()
-        for i in np.flatnonzero(flip):
-            adj = _adjoint(zl[i])  # e' = -Ad_Z e
-            adj_inv = np.linalg.inv(adj)
-            info_l[i] = adj_inv.T @ info_l[i] @ adj_inv
-            zl[i] = se2_inverse(zl[i])
-            la[i], lb[i] = lb[i], la[i]
-    else:
-        info_l = np.asarray(loop_info, dtype=np.float64).reshape(-1, 3, 3)
-    uo = _upper_factors(np.asarray(odom_info, dtype=np.float64).reshape(-1, 3, 3))
-    ul = _upper_factors(info_l)
-    n_edges = k - 1
-    n_var = 3 * n_edges + (n_loops if switchable else 0)
+    info: dict[str, Any] = {"nfev": 0, "rejected_after_solve": 0, "seconds": 0.0}
+    kept = np.ones(n_loops, dtype=bool)
+    if n < 2 or n_loops == 0:
+        return p0.copy(), kept, info
+    a = np.concatenate([np.arange(n - 1), la])
+    b = np.concatenate([np.arange(1, n), lb])
+    z = np.concatenate([zo, lz])
+    lam = 0.5 * (np.concatenate([io, li]) + np.swapaxes(np.concatenate([io, li]), 1, 2))
+    cov = np.linalg.inv(lam)
+    n_chain = n - 1
 
-    # sparsity structure: chain edge e -> increment e; loop l -> increments la+1 .. lb (node m = increment m-1)
-    three = np.arange(3)
-    ro = (3 * np.arange(n_edges)[:, None, None] + three[None, :, None] + 0 * three[None, None, :]).ravel()
-    co = (3 * np.arange(n_edges)[:, None, None] + 0 * three[None, :, None] + three[None, None, :]).ravel()
-    spans = lb - la
-    loop_of = np.repeat(np.arange(n_loops), spans)
-    node = (np.arange(loop_of.shape[0]) - np.repeat(np.cumsum(spans) - spans, spans)) + la[loop_of] + 1
-    rl = (3 * n_edges + 3 * loop_of[:, None, None] + three[None, :, None] + 0 * three[None, None, :]).ravel()
-    cl = (3 * (node - 1)[:, None, None] + 0 * three[None, :, None] + three[None, None, :]).ravel()
-    rows = [ro, rl]
-    cols = [co, cl]
-    if switchable:  # d(loop residual)/d(switch), then the switch priors
-        rows += [(3 * n_edges + 3 * np.arange(n_loops)[:, None] + three[None, :]).ravel(),
-                 3 * (n_edges + n_loops) + np.arange(n_loops)]
-        cols += [np.repeat(3 * n_edges + np.arange(n_loops), 3), 3 * n_edges + np.arange(n_loops)]
-    rows_a = np.concatenate(rows)
-    cols_a = np.concatenate(cols)
-    n_res = 3 * (n_edges + n_loops) + (n_loops if switchable else 0)
-    czo, szo = np.cos(zo[:, 2]), np.sin(zo[:, 2])
-    b_odom = np.zeros((n_edges, 3, 3))
-    b_odom[:, 0, 0], b_odom[:, 0, 1], b_odom[:, 1, 0], b_odom[:, 1, 1] = czo, szo, -szo, czo
-    b_odom[:, 2, 2] = 1.0
-    j_odom = np.einsum("eij,ejk->eik", uo, b_odom).ravel()  # constant
-    prior = math.sqrt(switch_chi2)
+    # 1. robust linear estimate (graduated Cauchy re-weighting of the loops, down to a wide scale)
+    weights = np.ones(n + n_loops - 1)
+    p_lin = _linear_estimate(p0, a, b, z, cov, n_chain, weights)
+    chi2 = loop_chi2(p_lin, la, lb, lz, li)
+    floor = _LINEAR_FLOOR * kernel_chi2
+    c2 = max(float(chi2.max()), floor)
+    for _ in range(60):
+        c2 = max(c2 / 4.0, floor)
+        new = 1.0 / (1.0 + chi2 / c2)
+        done = c2 == floor and float(np.max(np.abs(new - weights[n_chain:]))) < 1e-3
+        weights[n_chain:] = new
+        p_lin = _linear_estimate(p0, a, b, z, cov, n_chain, weights)
+        chi2 = loop_chi2(p_lin, la, lb, lz, li)
+        if done:
+            break
 
-    def chain(x: F64) -> F64:
-        inc = x[: 3 * n_edges].reshape(-1, 3)
-        th = p0[0, 2] + np.concatenate([[0.0], np.cumsum(inc[:, 2])])
-        c, s = np.cos(th[:-1]), np.sin(th[:-1])
-        out = np.empty((k, 3))
-        out[:, 0] = p0[0, 0] + np.concatenate([[0.0], np.cumsum(c * inc[:, 0] - s * inc[:, 1])])
-        out[:, 1] = p0[0, 1] + np.concatenate([[0.0], np.cumsum(s * inc[:, 0] + c * inc[:, 1])])
-        out[:, 2] = th
+    # 2. nonlinear solves, re-weighting the loops (Cauchy on each loop's χ², its scale graduated
+    # down to kernel_chi2) from their χ² in the previous solution
+    def solve(start: F64, loop_weights: F64, nfev: int) -> F64:
+        idx = np.concatenate([np.arange(n_chain), n_chain + np.flatnonzero(kept)])
+        w = np.concatenate([np.ones(n_chain), loop_weights[kept]])
+        out, sinfo = _nonlinear_solve(start, a[idx], b[idx], z[idx], lam[idx] * w[:, None, None], nfev, tolerance)
+        info["nfev"] += sinfo["nfev"]
         return out
 
-    def fun(x: F64) -> F64:
-        inc = x[: 3 * n_edges].reshape(-1, 3)
-        ux, uy = inc[:, 0] - zo[:, 0], inc[:, 1] - zo[:, 1]
-        eo = np.column_stack([czo * ux + szo * uy, -szo * ux + czo * uy, wrap_angle(inc[:, 2] - zo[:, 2])])
-        p = chain(x)
-        rl_ = np.einsum("eij,ej->ei", ul, _edge_errors(p[la], p[lb], zl))
-        parts = [np.einsum("eij,ej->ei", uo, eo).ravel()]
-        if switchable:
-            s = x[3 * n_edges:]
-            parts += [(rl_ * s[:, None]).ravel(), prior * (1.0 - s)]
-        else:
-            parts.append(rl_.ravel())
-        return np.concatenate(parts)
+    p = p_lin
+    scales = [_LINEAR_FLOOR]
+    while scales[-1] > 1.0:
+        scales.append(max(scales[-1] / _GNC_RATIO, 1.0))
+    for scale in scales:  # (only the weights matter: a few steps each)
+        p = solve(p, weights[n_chain:], min(max_nfev, _RESTART_NFEV))
+        weights[n_chain:] = 1.0 / (1.0 + loop_chi2(p, la, lb, lz, li) / (scale * kernel_chi2))
 
-    def jac(x: F64) -> Any:
-        p = chain(x)
-        a_of = la[loop_of]
-        ang = p[node - 1, 2] - p[a_of, 2] - zl[loop_of, 2]  # R_z^T R_a^T R_{m-1}
-        c, s = np.cos(ang), np.sin(ang)
-        rot = p[a_of, 2] + zl[loop_of, 2]
-        ca, sa = np.cos(rot), np.sin(rot)
-        vx = p[lb[loop_of], 0] - p[node, 0]
-        vy = p[lb[loop_of], 1] - p[node, 1]
-        jl = np.zeros((loop_of.shape[0], 3, 3))
-        jl[:, 0, 0], jl[:, 0, 1], jl[:, 1, 0], jl[:, 1, 1] = c, -s, s, c
-        jl[:, 0, 2] = -ca * vy + sa * vx  # R(-rot) · S · (t_b - t_m)
-        jl[:, 1, 2] = sa * vy + ca * vx
-        jl[:, 2, 2] = 1.0
-        jl = np.einsum("eij,ejk->eik", ul[loop_of], jl)
-        data = [j_odom]
-        if switchable:
-            sw = x[3 * n_edges:]
-            data.append((jl * sw[loop_of, None, None]).ravel())
-            el = np.einsum("eij,ej->ei", ul, _edge_errors(p[la], p[lb], zl))
-            data += [el.ravel(), np.full(n_loops, -prior)]
-        else:
-            data.append(jl.ravel())
-        return csr_matrix((np.concatenate(data), (rows_a, cols_a)), shape=(n_res, n_var))
-
-    x0 = se2_between(p0[:-1], p0[1:]).ravel()
-    lower = np.full(n_var, -np.inf)
-    upper = np.full(n_var, np.inf)
-    if switchable:
-        x0 = np.concatenate([x0, np.ones(n_loops)])
-        lower[3 * n_edges:] = 0.0
-        upper[3 * n_edges:] = 1.0
-    res = least_squares(fun, x0, jac=jac, bounds=(lower, upper) if switchable else (-np.inf, np.inf),
-                        method="trf", tr_solver="lsmr", ftol=tolerance, xtol=tolerance, gtol=tolerance,
-                        max_nfev=max_nfev, loss=loss, f_scale=f_scale, tr_options={"atol": 1e-12, "btol": 1e-12})
-    out = chain(res.x)
-    out[:, 2] = wrap_angle(out[:, 2])
-    switches = res.x[3 * n_edges:].copy() if switchable else np.ones(n_loops)
-    info = {"nfev": int(res.nfev), "cost": float(res.cost), "status": int(res.status),
-            "seconds": time.perf_counter() - t0}
-    return out, switches, info
+    # 3. loops that still do not fit are dropped, all above reject_chi2 at once (their weights kept
+    # a false loop from raising the others' χ²), and the graph solved with the rest at full weight
+    for _ in range(max_rejection_rounds + 1):
+        idx = np.flatnonzero(kept)
+        chi2 = loop_chi2(p, la[idx], lb[idx], lz[idx], li[idx])
+        bad = idx[chi2 > reject_chi2]
+        if bad.size:
+            log.info("loop closure: %d of %d loops dropped after the solve (χ² %.1f to %.1f)", bad.size, n_loops,
+                     float(chi2[chi2 > reject_chi2].min()), float(chi2.max()))
+            kept[bad] = False
+            info["rejected_after_solve"] += int(bad.size)
+        if not kept.any():
+            p = p0.copy()
+            break
+        if bad.size == 0 and np.all(weights[n_chain:][kept] == 1.0):
+            break
+        weights[n_chain:] = 1.0
+        p = solve(p, weights[n_chain:], max_nfev)
+    info["seconds"] = time.perf_counter() - t0
+    return p, kept, info
 
 
 # ---------------------------------------------------------------------------------------------
@@ -516,7 +685,7 @@ class _Loop:
     b: int
     z: F64  # T_a_b
     info: F64  # 3x3
-    kind: str  # "position", "descriptor" or "external"
+    kind: str  # "tracked", "position", "descriptor" or "external"
 
 
 class _Buffer:
@@ -569,18 +738,20 @@ class LoopCloser:
         self._kf_dist = _Buffer(1)  # distance driven up to the keyframe, m
         self._kf_scan = _Buffer(1, np.int64)  # the keyframe's scan index
         self._kf_key = _Buffer(cfg.descriptor_rings, np.float32)
-        self._kf_desc: list[NDArray[np.float32]] = []
-        self._kf_points: list[NDArray[np.float32]] = []  # (M, 2) base frame, KISS-ICP map down-sampling
+        self._kf_desc: list[NDArray[np.bool_]] = []  # the descriptors (0/1 cells, kept as bool)
+        # (M, 3) float32 per keyframe: base-frame x, y (KISS-ICP's map down-sampling) and line-normal direction
+        self._kf_points: list[NDArray[np.float32]] = []
         self._odom_z = _Buffer(3)  # T_{kf-1}_kf
         self._odom_info = _Buffer(9)
         self._loops: list[_Loop] = []
+        self._last_loop: _Loop | None = None  # the last loop found, carried forward as a candidate
         # the running state
         self._last_pose: F64 | None = None
         self._dist = 0.0
         self._cov = np.zeros((3, 3))  # covariance of the current scan relative to its keyframe
         self._counts = {"candidates": 0, "verified": 0, "accepted": 0, "rejected_inliers": 0,
-                        "rejected_degenerate": 0, "rejected_gate": 0, "from_position": 0, "from_descriptor": 0,
-                        "external": 0}
+                        "rejected_degenerate": 0, "rejected_gate": 0, "from_tracked": 0, "from_position": 0,
+                        "from_descriptor": 0, "external": 0}
         self._seconds_search = 0.0
 
     # -- public ------------------------------------------------------------------------------
@@ -651,12 +822,13 @@ class LoopCloser:
         self._kf_dist.append(self._dist)
         self._kf_scan.append(index)
         desc = scan_context(prepared[0], cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
-        self._kf_desc.append(desc)
+        self._kf_desc.append(desc > 0.5)
         self._kf_key.append(ring_key(desc))
-        self._kf_points.append(prepared[0].astype(np.float32))
+        normals = _line_normals(prepared[0])
+        self._kf_points.append(np.column_stack([prepared[0], normals]).astype(np.float32))
         if prepared[1].shape[0] >= cfg.min_points:
             t0 = time.perf_counter()
-            self._search(n_kf, prepared[1])
+            self._search(n_kf, prepared[1], prepared[0])
             self._seconds_search += time.perf_counter() - t0
 
     def add_loop(self, index_a: int, index_b: int, t_a_b: ArrayLike, info: ArrayLike) -> None:
@@ -701,48 +873,20 @@ class LoopCloser:
         nfev = 0
         if n_kf >= 2 and self._loops:
             loops = self._loops
-            la = np.array([lp.a for lp in loops])
-            lb = np.array([lp.b for lp in loops])
-            lz = np.array([lp.z for lp in loops])
-            li = np.array([lp.info for lp in loops])
-            zo = self._odom_z.view
-            io = self._odom_info.view.reshape(-1, 3, 3)
-            active = np.ones(len(loops), dtype=bool)
-            kw: dict[str, Any] = {"max_nfev": cfg.max_nfev, "tolerance": cfg.tolerance}
-
-            def solve(start: F64, switchable: bool = False) -> tuple[F64, F64]:
-                nonlocal nfev
-                idx = np.flatnonzero(active)
-                if idx.size == 0:  # the chain alone: the registration's poses
-                    return raw.copy(), np.ones(0)
-                out, sw, info = solve_pose_graph(start, zo, io, la[idx], lb[idx], lz[idx], li[idx],
-                                                 switchable=switchable, switch_chi2=cfg.switch_chi2, **kw)
-                nfev += info["nfev"]
-                return out, sw
-
-            poses, _ = solve(raw)
-            if cfg.switchable:  # from the all-loops solution, which true loops agree with
-                poses, sw = solve(poses, switchable=True)
-                off = np.flatnonzero(active)[sw < 0.5]
-                if off.size:
-                    log.info("loop closure: %d of %d loops switched off", off.size, len(loops))
-                    active[off] = False
-                    rejected += int(off.size)
-                    poses, _ = solve(poses)
-            for _ in range(cfg.max_rejection_rounds):
-                idx = np.flatnonzero(active)
-                if idx.size == 0:
-                    break
-                chi2 = loop_chi2(poses, la[idx], lb[idx], lz[idx], li[idx])
-                worst = int(np.argmax(chi2))
-                if chi2[worst] <= cfg.reject_chi2:
-                    break
-                log.info("loop closure: loop %d-%d dropped after the solve (χ² %.1f)", int(la[idx[worst]]),
-                         int(lb[idx[worst]]), float(chi2[worst]))
-                active[idx[worst]] = False
-                rejected += 1
-                poses, _ = solve(poses)
-            kept = [lp for lp, a in zip(loops, active) if a]
+            try:
+                poses, keep, info = solve_pose_graph(
+                    raw, self._odom_z.view, self._odom_info.view.reshape(-1, 3, 3), [lp.a for lp in loops],
+                    [lp.b for lp in loops], [lp.z for lp in loops], [lp.info for lp in loops],
+                    kernel_chi2=cfg.kernel_chi2, reject_chi2=cfg.reject_chi2,
+                    max_rejection_rounds=cfg.max_rejection_rounds, max_nfev=cfg.max_nfev,
+                    tolerance=cfg.tolerance)
+            except np.linalg.LinAlgError as exc:  # pragma: no cover - a degenerate graph
+                log.warning("loop closure: the pose graph could not be solved (%s); poses left as registered", exc)
+                stats["solver_failed"] = True
+                poses, keep, info = raw, np.zeros(len(loops), dtype=bool), {"nfev": 0, "rejected_after_solve": 0}
+            kept = [lp for lp, k in zip(loops, keep) if k]
+            rejected = int(info["rejected_after_solve"])
+            nfev = int(info["nfev"])
         else:
             poses = raw
         kf = self._scan_kf.view[:, 0]
@@ -800,8 +944,8 @@ class LoopCloser:
         return int(hits[-1])
 
     # -- loop detection ------------------------------------------------------------------------
-    def _search(self, k: int, source: F64) -> None:
-        """Find and verify loop candidates for keyframe ``k`` (with ICP source points ``source``)."""
+    def _search(self, k: int, source: F64, dense: F64) -> None:
+        """Find and verify loop candidates for keyframe ``k`` (ICP source and dense points, base frame)."""
         cfg = self.cfg
         last = k - cfg.min_separation
         if last < 0 or cfg.max_candidates == 0:
@@ -809,12 +953,24 @@ class LoopCloser:
         poses = self._kf_pose.view
         pk = poses[k]
         old = poses[: last + 1]
-        # (keyframe, guess T_j_k, kind), best first
+        # (keyframe j, guess T_j_k, kind), best first
+        tracked: list[tuple[int, F64, str]] = []
+        if self._last_loop is not None and k - self._last_loop.b <= cfg.track_keyframes:
+            # the last loop, carried forward by the registration: T_a_k = Z · T_b_k
+            lp = self._last_loop
+            pred = se2_compose(lp.z, se2_between(poses[lp.b], pk))
+            lo, hi = max(0, lp.a - 2 * cfg.track_keyframes), min(last, lp.a + 2 * cfg.track_keyframes)
+            if lo <= hi:
+                near = se2_between(poses[lp.a], old[lo: hi + 1])
+                # the nearest keyframe, preferring one that looked the same way (1 m per rad)
+                cost = np.hypot(near[:, 0] - pred[0], near[:, 1] - pred[1]) + np.abs(wrap_angle(near[:, 2] - pred[2]))
+                j = lo + int(np.argmin(cost))
+                tracked.append((j, se2_compose(se2_between(old[j], poses[lp.a]), pred), "tracked"))
         by_position: list[tuple[int, F64, str]] = []
         dist = np.hypot(old[:, 0] - pk[0], old[:, 1] - pk[1])
         radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[: last + 1, 0])
-        near = np.flatnonzero(dist <= radius)
-        for j in near[np.argsort(dist[near] / np.maximum(radius[near], 1e-9))]:
+        near_idx = np.flatnonzero(dist <= radius)
+        for j in near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]:
             by_position.append((int(j), se2_between(old[j], pk), "position"))
         by_descriptor: list[tuple[int, F64, str]] = []
         if cfg.descriptor:
@@ -823,38 +979,40 @@ class LoopCloser:
             kd = np.sum((keys - self._kf_key.view[k]) ** 2, axis=1)
             m = min(cfg.descriptor_preselect, kd.shape[0])
             pre = np.argpartition(kd, m - 1)[:m]
-            dd, yaw = descriptor_distance(self._kf_desc[k], np.stack([self._kf_desc[j] for j in pre]))
-            order = np.argsort(dd)
-            for i in order:
+            dd, yaw = descriptor_distance(self._kf_desc[k].astype(np.float32),
+                                          np.stack([self._kf_desc[j] for j in pre]).astype(np.float32))
+            for i in np.argsort(dd):
                 if dd[i] <= cfg.descriptor_threshold:
                     by_descriptor.append((int(pre[i]), np.array([0.0, 0.0, float(yaw[i])]), "descriptor"))
-        # interleave, then group candidates of one neighbourhood into one place with several guesses
-        merged: list[tuple[int, F64, str]] = []
+        # tracked first, then descriptor and position interleaved; candidates in one neighbourhood
+        # form one place, verified once with each of their guesses
+        merged = list(tracked)
         for i in range(max(len(by_position), len(by_descriptor))):
             merged += [lst[i] for lst in (by_descriptor, by_position) if i < len(lst)]
-        places: list[tuple[int, list[F64], set[str]]] = []
+        places: list[tuple[int, list[F64], list[str]]] = []
         for j, guess, kind in merged:
             home = next((pl for pl in places if abs(pl[0] - j) <= cfg.submap_keyframes), None)
             if home is None:
-                if len(places) >= cfg.max_candidates:
-                    continue
-                places.append((j, [guess], {kind}))
-            elif len(home[1]) < 3:  # the guess in the home keyframe's frame
+                if len(places) < cfg.max_candidates:
+                    places.append((j, [guess], [kind]))
+            elif len(home[1]) < 3 and kind not in home[2]:  # the guess in the home keyframe's frame
                 home[1].append(se2_compose(se2_between(old[home[0]], old[j]), guess))
-                home[2].add(kind)
+                home[2].append(kind)
         found = 0
         for j, guesses, kinds in places:
             self._counts["candidates"] += 1
-            loop = self._verify(j, k, source, guesses, kinds)
+            loop = self._verify(j, k, source, dense, guesses, kinds)
             if loop is not None:
                 self._loops.append(loop)
+                self._last_loop = loop
                 self._counts["accepted"] += 1
-                self._counts["from_descriptor" if loop.kind == "descriptor" else "from_position"] += 1
+                self._counts[f"from_{loop.kind}"] += 1
                 found += 1
                 if found >= cfg.max_loops_per_keyframe:
                     break
 
-    def _verify(self, j: int, k: int, source: F64, guesses: list[F64], kinds: set[str]) -> _Loop | None:
+    def _verify(self, j: int, k: int, source: F64, dense: F64, guesses: list[F64], kinds: list[str]
+                ) -> _Loop | None:
         """ICP of keyframe k's points against the submap around keyframe j; the loop edge, or None."""
         from .kiss import KissMatcher, PreparedScan
 
@@ -865,30 +1023,48 @@ class LoopCloser:
         poses = self._kf_pose.view
         rel = se2_between(poses[j], poses[lo: hi + 1])
         matcher = KissMatcher(self._icp_cfg)
-        parts = []
+        parts: list[F64] = []  # (M, 3): x, y, normal direction in j's frame
+        fine: list[F64] = []
         for i, r in zip(range(lo, hi + 1), rel):
-            pts = self._kf_points[i].astype(np.float64)
-            if pts.shape[0] == 0:
+            stored = self._kf_points[i].astype(np.float64)
+            if stored.shape[0] == 0:
                 continue
-            p3 = np.zeros((pts.shape[0], 3))
-            p3[:, :2] = pts
+            p3 = np.zeros((stored.shape[0], 3))
+            p3[:, :2] = stored[:, :2]
             matcher.update_map(PreparedScan(p3, p3), r)
-            parts.append(se2_apply(r, pts))
-        if not parts or sum(p.shape[0] for p in parts) < cfg.min_points:
+            parts.append(np.column_stack([se2_apply(r, stored[:, :2]), stored[:, 2] + r[2]]))
+            if abs(i - j) <= cfg.refine_keyframes:
+                fine.append(parts[-1])
+        if sum(p.shape[0] for p in parts) < cfg.min_points:
             return None
         self._counts["verified"] += 1
-        sub = _Submap(np.concatenate(parts))
+        whole = np.concatenate(parts)
+        sub = _Submap(whole[:, :2], whole[:, 2])
+        # the registration's drift bends a long submap: the final fit is to the candidate's close neighbours
+        if fine and len(fine) < len(parts):
+            near = np.concatenate(fine)
+            sub_fine = _Submap(near[:, :2], near[:, 2])
+        else:
+            sub_fine = sub
+        if dense.shape[0] > cfg.max_query_points:
+            dense = dense[np.linspace(0, dense.shape[0] - 1, cfg.max_query_points).astype(np.int64)]
         q3 = np.zeros((source.shape[0], 3))
         q3[:, :2] = source
         query = PreparedScan(q3, q3)
         best: _Match | None = None
-        for guess in guesses:
+        best_kind = kinds[0]
+        for guess, kind in zip(guesses, kinds):
             icp = matcher.align(query, guess)
             if not np.all(np.isfinite(icp)):
                 continue
-            match = _refine(sub, source, icp, cfg)
+            pose = _align(sub_fine, dense, icp, cfg)
+            if sub_fine is not sub and _overlap(sub_fine, dense, pose, cfg) < 0.5 * cfg.min_inliers:
+                pose = _align(sub, dense, icp, cfg)  # too little of the keyframe seen by the candidate alone
+            match = _evaluate(sub, dense, pose, cfg)
             if best is None or match.inliers > best.inliers:
-                best = match
+                best, best_kind = match, kind
+            if match.inliers >= cfg.min_inliers and match.condition >= cfg.min_condition:
+                break
         if best is None or best.inliers < cfg.min_inliers:
             self._counts["rejected_inliers"] += 1
             log.debug("loop %d-%d: %.0f%% inliers", j, k, 100 * (best.inliers if best else 0.0))
@@ -904,10 +1080,9 @@ class LoopCloser:
                 self._counts["rejected_gate"] += 1
                 log.debug("loop %d-%d: correction beyond the gate", j, k)
                 return None
-        kind = "descriptor" if kinds == {"descriptor"} else "position"
-        log.debug("loop %d-%d accepted (%s): %.0f%% inliers, condition %.3f, rms %.3f m", j, k, kind,
+        log.debug("loop %d-%d accepted (%s): %.0f%% inliers, condition %.3f, rms %.3f m", j, k, best_kind,
                   100 * best.inliers, best.condition, best.rms)
-        return _Loop(j, k, best.pose, _inverse_spd(best.cov), kind)
+        return _Loop(j, k, best.pose, _inverse_spd(best.cov), best_kind)
 
 
 def _inverse_spd(cov: F64) -> F64:

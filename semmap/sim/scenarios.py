@@ -1,4 +1,5 @@
-"""Built-in scenarios: ``demo``, ``ward``, ``office``, ``occlusion``, ``ward_b``, ``office_b``, and ``random:SEED``.
+"""Built-in scenarios: ``demo``, ``ward``, ``office``, ``occlusion``, ``loop``, ``ward_b``, ``office_b``, and
+``random:SEED``.
 
 Each returns a :class:`Scenario`: the world, configuration overrides for the
 simulator, and for the ``_b`` variants the base world they change. Geometry is
@@ -316,6 +317,105 @@ def occlusion() -> Scenario:
                     overrides={"robot": {"max_speed": 0.4}})
 
 
+# ---------------------------------------------------------------------------------------
+# loop: a ring corridor round a block of rooms, driven once round and on past the start
+
+_LOOP_HALF = 1.4  # half the ring corridor's width (2.8 m between the walls' centre lines)
+# the ring's centre line: 40 m x 20 m, corners (0, 0) and (40, 20)
+_LOOP_ROUTE = [(3.0, 0.0), (40.0, 0.0), (40.0, 20.0), (0.0, 20.0), (0.0, 0.0), (18.0, 0.0)]
+
+
+def _loop_building(ids: IdCounter) -> list[WorldObject]:
+    h = _LOOP_HALF
+    lo, hi = -h, 40.0 + h  # outer walls along x
+    lo_y, hi_y = -h, 20.0 + h  # outer walls along y
+    door = 1.2
+
+    def doors_at(x0: float, xs: Iterable[float]) -> list[tuple[float, float]]:
+        return [(x - x0, door) for x in xs]
+
+    segs: list[WallSegment] = [
+        # outer ring wall; the west side has a 3 m deep lounge alcove (y 6..14)
+        ((lo, lo_y), (hi, lo_y), doors_at(lo, (6.0, 14.0, 22.0, 30.0))),  # south, doors to rooms S1..S4
+        ((lo, hi_y), (hi, hi_y), doors_at(lo, (8.5, 20.0, 31.5))),  # north, doors to rooms N1..N3
+        ((hi, lo_y), (hi, hi_y), []),  # east
+        ((lo, lo_y), (lo, 6.0), []), ((lo, 6.0), (lo - 3.0, 6.0), []), ((lo - 3.0, 6.0), (lo - 3.0, 14.0), []),
+        ((lo - 3.0, 14.0), (lo, 14.0), []), ((lo, 14.0), (lo, hi_y), []),
+        # rooms outside the ring: four to the south, three to the north
+        ((2.0, lo_y - 5.0), (34.0, lo_y - 5.0), []),
+        ((3.0, hi_y + 5.0), (37.0, hi_y + 5.0), []),
+    ]
+    segs += [((x, lo_y), (x, lo_y - 5.0), []) for x in (2.0, 10.0, 18.0, 26.0, 34.0)]
+    segs += [((x, hi_y), (x, hi_y + 5.0), []) for x in (3.0, 14.0, 26.0, 37.0)]
+    # the central block: 37.2 m x 17.2 m, eight rooms, five of them with a door onto the ring
+    b0, b1 = h, 40.0 - h
+    c0, c1 = h, 20.0 - h
+    segs += [
+        ((b0, c0), (b1, c0), doors_at(b0, (5.5, 25.0))),
+        ((b0, c1), (b1, c1), doors_at(b0, (15.0, 34.5))),
+        ((b0, c0), (b0, c1), [(14.0 - c0, door)]),
+        ((b1, c0), (b1, c1), [(6.0 - c0, door)]),
+        ((b0, 10.0), (b1, 10.0), []),
+    ]
+    segs += [((x, c0), (x, c1), []) for x in (10.0, 20.0, 30.0)]
+    objs = walls_with_doors(ids, segs)
+    # pilasters along the east wall: something for scan matching on the ring's short side
+    objs += [pillar(ids(), hi, y, 0.4) for y in (4.0, 8.0, 12.0, 16.0)]
+    return objs
+
+
+def _loop_furniture(ids: IdCounter) -> list[WorldObject]:
+    h = _LOOP_HALF
+    objs: list[WorldObject] = []
+    # south corridor: waiting chairs and a plant against the outer wall, a screen at the east end
+    objs += [chair(ids(), (x, -h + 0.3, 0.0)) for x in (10.0, 10.55, 18.0, 18.55)]
+    objs += [potted_plant(ids(), 26.5, -h + 0.5), screen(ids(), (34.5, -h + 0.25, 0.0))]
+    # north corridor: chairs and a table against the block, plants against the outer wall
+    objs += [chair(ids(), (x, 20.0 - h + 0.3, 0.0)) for x in (24.0, 24.55)]
+    objs += [table(ids(), (27.0, 20.0 - h + 0.4, 0.0), 1.2, 0.6)]
+    objs += [potted_plant(ids(), x, 20.0 + h - 0.45) for x in (12.0, 36.0)]
+    # west lounge alcove: a couch facing the ring, plants in its corners, an armchair
+    objs += [couch(ids(), (-h - 3.0 + 0.53, 10.0, -math.pi / 2)),
+             potted_plant(ids(), -h - 2.55, 6.5), potted_plant(ids(), -h - 2.55, 13.5),
+             chair(ids(), (-h - 0.9, 7.9, -math.pi / 2))]
+    # rooms south of the ring: a meeting table, beds, a cabinet, desks
+    objs += [table(ids(), (6.0 - 2.4, -4.0, math.pi / 2), 1.6, 0.8),
+             chair(ids(), (6.0 - 1.75, -3.6, math.pi / 2)), chair(ids(), (6.0 - 1.75, -4.4, math.pi / 2))]
+    objs += [bed(ids(), (12.3, -5.25, math.pi)), bed(ids(), (15.7, -5.25, math.pi))]
+    objs += [cabinet(ids(), (22.0, -6.05, 0.0), 1.4, 0.5)]
+    objs += [table(ids(), (30.0, -5.5, 0.0), 1.4, 0.7), chair(ids(), (30.0, -4.85, math.pi))]
+    # rooms north of the ring: a couch, a bed, a desk
+    objs += [couch(ids(), (8.5, 20.0 + h + 4.45, math.pi)), bed(ids(), (22.0, 20.0 + h + 3.8, 0.0))]
+    objs += [table(ids(), (31.5, 20.0 + h + 4.2, 0.0), 1.4, 0.7), chair(ids(), (31.5, 20.0 + h + 3.5, 0.0))]
+    # rooms in the central block, seen through their doors
+    objs += [table(ids(), (5.5, 6.0, 0.0), 1.6, 0.8), chair(ids(), (5.1, 5.3, 0.0)), chair(ids(), (5.9, 5.3, 0.0)),
+             potted_plant(ids(), 9.3, 2.1)]
+    objs += [bed(ids(), (27.5, 6.5, 0.0)), chair(ids(), (23.0, 8.8, math.pi))]
+    objs += [table(ids(), (35.0, 6.0, math.pi / 2), 1.4, 0.8), potted_plant(ids(), 37.9, 2.1)]
+    objs += [couch(ids(), (5.0, 17.8, math.pi)), potted_plant(ids(), 2.1, 10.8)]
+    objs += [bed(ids(), (17.0, 13.5, 0.0)), cabinet(ids(), (34.5, 11.0, 0.0), 1.2, 0.45)]
+    return objs
+
+
+def loop() -> Scenario:
+    ids = IdCounter(0)
+    objs = _loop_building(ids) + _loop_furniture(ids)
+    people = (
+        # walks west towards the robot along the south corridor, then into room S1 and stays
+        _person(501, 0, [(30.0, 0.75), (6.0, 0.75), (6.0, -3.3)], speed=1.2, loop=False, pauses=((2, 1000.0),)),
+        _person(502, 1, [(22.0, 20.0 + _LOOP_HALF - 0.5)]),  # stands in the north corridor the whole tour
+        _person(503, 2, [(40.8, 4.6), (40.8, 15.4)], speed=0.8, loop=False,  # paces the east corridor
+                pauses=((0, 6.0), (1, 6.0))),
+        _person(504, 3, [(25.0, 5.0)]),  # stands in a room of the block, seen through its door
+    )
+    return Scenario(World("loop", tuple(objs), people, np.asarray(_LOOP_ROUTE, float), start_yaw=0.0,
+                          description="A 2.8 m wide ring corridor, 40 m x 20 m, round a block of eight rooms, "
+                                      "seven more rooms outside, a lounge alcove: driven once round (120 m) "
+                                      "and 15 m on past the start, 135 m in all, twice ward's route. Four "
+                                      "people: walking, pacing, standing. For loop closure: give it "
+                                      "drifting odometry (tools/bench_loops.py)."))
+
+
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "demo": demo,
     "ward": ward,
@@ -323,6 +423,7 @@ SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "office": office,
     "office_b": office_b,
     "occlusion": occlusion,
+    "loop": loop,
 }
 
 

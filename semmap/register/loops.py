@@ -13,8 +13,9 @@ the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
   ``min_separation`` keyframes older, best first:
 
   - tracked: the last loop found, carried forward by the registration's motion (within
-    ``track_keyframes``): on a revisit, each keyframe proposes the next with a guess good
-    to centimetres, whatever the drift;
+    ``track_keyframes``): on a revisit each keyframe proposes the next with a guess good to
+    centimetres, whatever the drift; a loop found late is also carried back over the
+    keyframes before it (the drift hid the place from them);
   - by position: within ``search_radius`` + ``drift_per_m`` · (distance driven since them)
     of the drifted estimate;
   - with ``descriptor``, by a scan-context-style polar descriptor (rings × sectors; a cell
@@ -22,31 +23,42 @@ the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
     which changes smoothly with position). Its ring key (share of sectors reaching each
     ring) is rotation invariant and pre-selects ``descriptor_preselect`` keyframes (brute
     force: exact, and at 20 dimensions as fast as a KD-tree); the column-shift comparison
-    (1 - mean column cosine) ranks them and yields a yaw guess, independent of the drift.
+    ranks them and yields a yaw guess, independent of the drift.
 
   Candidates within ``submap_keyframes`` of each other are one place, verified once from
-  each of their guesses; at most ``max_candidates`` places per keyframe.
+  each of their guesses; at most ``max_candidates`` places per keyframe, and a place that
+  just failed is not tried again for ``retry_keyframes``.
 * **Verification**: KISS-ICP (:class:`~semmap.register.kiss.KissMatcher`) against the
   candidate and its ``submap_keyframes`` neighbours on each side (placed by the
   registration's relative poses), from each guess; then a point-to-line Gauss-Newton fit
   to the candidate keyframe alone (``refine_keyframes``: the registration's drift bends a
-  longer submap by centimetres at its far end). A match is a loop when ``min_inliers`` of
-  the query points lie within ``inlier_distance`` of the submap, the point-to-line Hessian
-  is well conditioned (smallest / largest eigenvalue ≥ ``min_condition``, rotation scaled
-  by the points' RMS range: a corridor match that can slide is not a loop), and the
-  correction it asks for is at most ``gate_factor`` times the search radius (a place that
-  only looks alike). The loop's covariance is the Hessian's inverse times the residual
-  variance, the query counted as ``loop_effective_points`` independent points (scan
-  residuals are correlated).
+  longer submap by centimetres at its far end). A match is a loop when
+
+  - ``min_inliers`` of the keyframe's points lie within ``inlier_distance`` of the submap,
+    with a point-to-line RMS of at most ``max_rms``;
+  - the point-to-line Hessian is well conditioned (smallest / largest eigenvalue ≥
+    ``min_condition``, rotation scaled by the points' RMS range): a corridor match that can
+    slide is not a loop;
+  - the keyframe's beams passed through at most ``max_conflicts`` of the submap's points
+    (free space: a place that only looks alike has walls where the keyframe saw through);
+  - the correction it asks of the registration is plausible (``gate_factor``: moved at most
+    that times the search radius, turned at most that times 3 σ of the registration's
+    heading over the stretch).
+
+  Its covariance is the Hessian's inverse times the residual variance, the keyframe's
+  points counted as ``loop_effective_points`` independent ones (scan residuals are
+  correlated). It joins the graph once ``confirm`` loops found within ``track_keyframes``
+  agree on where the keyframes are (a revisit yields a run of them; an alias rarely does).
 * **Pose graph** (:func:`solve_pose_graph`): keyframe nodes; odometry edges between
   consecutive keyframes with the registration's relative poses and a covariance
   propagated from every step (the caller's information matrices, or a random-walk
   default); loop edges. :func:`scipy.optimize.least_squares` with an analytic sparse
   Jacobian (first node fixed), preconditioned by a sparse LDLᵀ factor of JᵀJ, from a robust
   linear initial estimate (LAGO); see there.
-* **False loops**: a Cauchy kernel on each loop's χ², graduated from a wide scale down to
-  ``kernel_chi2`` over successive solves (iteratively re-weighted), then every loop whose
-  χ² still exceeds ``reject_chi2`` is dropped and the graph re-solved.
+* **False loops** in the graph: loops that disagree with the loops around them are dropped
+  first (pairwise consistency, greedily); then a Cauchy kernel on each loop's χ², graduated
+  from a wide scale down to ``kernel_chi2`` over successive solves; then every loop whose χ²
+  still exceeds ``reject_chi2`` is dropped and the graph re-solved.
 
 Frames: poses are ``T_map_base`` as SE(2) ``(x, y, yaw)``; a loop or odometry measurement
 between keyframes i and j is ``T_i_j``; covariances are of a right perturbation (in the
@@ -101,7 +113,8 @@ class LoopConfig:
     descriptor_sectors: int = 60
     descriptor_range: float = 15.0  # m, outer radius of the descriptor
     descriptor_preselect: int = 10  # nearest ring keys compared column by column
-    descriptor_threshold: float = 0.06  # descriptor distance (1 - mean column cosine) below which a place matches
+    descriptor_threshold: float = 0.15  # descriptor distance (1 - column cosine similarity) below which a place
+    #                                     may match
     max_candidates: int = 3  # candidate places verified per new keyframe
     max_loops_per_keyframe: int = 1  # stop verifying a keyframe's candidates after this many loops
     # verification
@@ -115,7 +128,14 @@ class LoopConfig:
     min_inliers: float = 0.6  # share of the query points within inlier_distance of the submap after ICP
     inlier_distance: float = 0.1  # m
     min_condition: float = 0.05  # smallest / largest eigenvalue of the scaled point-to-line Hessian
-    gate_factor: float = 2.0  # a loop correcting more than this × the search radius is rejected (0: off)
+    max_rms: float = 0.03  # m, point-to-line RMS of the inliers above which a match is too loose to be the place
+    max_conflicts: float = 0.2  # share of the submap's points the keyframe's beams passed through (free space)
+    retry_keyframes: int = 4  # a place that failed verification is not tried again for this many keyframes
+    confirm: int = 3  # a loop counts once this many found within track_keyframes agree (1: at once)
+    confirm_distance: float = 0.3  # m, how well two loops must agree on where the later keyframe is
+    confirm_angle: float = 0.1  # rad, and on its heading
+    gate_factor: float = 2.0  # a loop moving a keyframe more than this × the search radius, or turning it more
+    #                            than this × 3 σ of the registration's heading, is rejected (0: off)
     loop_sigma_min: float = 0.01  # m, floor of the residual σ in the loop covariance
     loop_effective_points: float = 10.0  # the query points count as this many independent ones
     # odometry edges: default covariance of one registration step (random walk in the distance driven)
@@ -125,6 +145,8 @@ class LoopConfig:
     odom_sigma_yaw_per_sqrt_m: float = 0.02  # rad per √m driven
     odom_sigma_yaw_per_sqrt_rad: float = 0.01  # rad per √rad turned
     # robust solve
+    pairwise_window: int = 50  # keyframes: loops whose ends are this close must agree with each other (0: off)
+    pairwise_chi2: float = 25.0  # χ² of a pair's disagreement beyond which they do not agree
     kernel_chi2: float = 25.0  # scale (χ²) of the Cauchy kernel on loop edges
     reject_chi2: float = 50.0  # after the solve, loops above this χ² are dropped and the graph re-solved
     max_rejection_rounds: int = 10
@@ -133,20 +155,23 @@ class LoopConfig:
 
     def __post_init__(self) -> None:
         positive = ("keyframe_distance", "keyframe_angle", "descriptor_range", "icp_threshold",
-                    "inlier_distance", "loop_sigma_min", "loop_effective_points", "kernel_chi2",
+                    "inlier_distance", "max_rms", "loop_sigma_min", "loop_effective_points", "pairwise_chi2",
+                    "kernel_chi2",
                     "reject_chi2", "tolerance")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"LoopConfig.{name} must be > 0, got {getattr(self, name)}")
         at_least_one = ("descriptor_rings", "descriptor_sectors", "descriptor_preselect", "max_loops_per_keyframe",
-                        "min_points", "max_query_points", "max_nfev")
+                        "min_points", "max_query_points", "max_nfev", "confirm")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise ValueError(f"LoopConfig.{name} must be >= 1, got {getattr(self, name)}")
         non_negative = ("min_separation", "search_radius", "drift_per_m", "descriptor_threshold", "max_candidates",
+                        "confirm_distance", "confirm_angle",
                         "submap_keyframes", "refine_keyframes", "track_keyframes", "refine_iterations",
-                        "min_condition", "gate_factor", "odom_sigma_xy", "odom_sigma_yaw", "odom_sigma_xy_per_sqrt_m",
-                        "odom_sigma_yaw_per_sqrt_m", "odom_sigma_yaw_per_sqrt_rad", "max_rejection_rounds")
+                        "min_condition", "max_conflicts", "retry_keyframes", "gate_factor", "odom_sigma_xy",
+                        "odom_sigma_yaw", "odom_sigma_xy_per_sqrt_m", "odom_sigma_yaw_per_sqrt_m",
+                        "odom_sigma_yaw_per_sqrt_rad", "pairwise_window", "max_rejection_rounds")
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"LoopConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -207,9 +232,11 @@ def ring_key(desc: NDArray[np.float32]) -> NDArray[np.float32]:
 def descriptor_distance(query: NDArray[np.float32], others: NDArray[np.float32]) -> tuple[F64, F64]:
     """Distance of ``query`` (R, S) to each of ``others`` (C, R, S) at the best column shift.
 
-    The distance is 1 - the mean cosine similarity of the columns present in both (scan
-    context); it is 1 when no column pairs up. Returns (distances (C,), yaw (C,)), the yaw
-    being that of the query's frame in the other's frame implied by the best shift.
+    The distance is 1 - the cosine similarity of the columns summed over those present in
+    both and divided by the number present in the fuller one (scan context, with sectors
+    outside one field of view counting as unlike); it is 1 when no column pairs up. Returns
+    (distances (C,), yaw (C,)), the yaw being that of the query's frame in the other's frame
+    implied by the best shift.
     """
     q = np.asarray(query, dtype=np.float64)
     c = np.asarray(others, dtype=np.float64).reshape(-1, *q.shape)
@@ -224,8 +251,10 @@ def descriptor_distance(query: NDArray[np.float32], others: NDArray[np.float32])
     c_present = c.sum(axis=1) > 0  # (C, S)
     cos = np.einsum("rks,crs->cks", q_rolled, cn)  # (C, K, S)
     both = q_present[None, :, :] & c_present[:, None, :]
-    n_both = both.sum(axis=2)
-    sim = np.where(n_both > 0, (cos * both).sum(axis=2) / np.maximum(n_both, 1), 0.0)  # (C, K)
+    # columns present in only one count as dissimilar: a narrow field of view must not match
+    # by overlapping the other's in a few sectors
+    n_either = np.maximum(q_present[0].sum(), c_present.sum(axis=1))  # (C,)
+    sim = (cos * both).sum(axis=2) / np.maximum(n_either, 1)[:, None]  # (C, K)
     best = np.argmax(sim, axis=1)
     dist = 1.0 - sim[np.arange(c.shape[0]), best]
     # query column s + k matches the other's column s: a bearing b there is b + kΔ here, so the
@@ -360,6 +389,28 @@ def _evaluate(sub: _Submap, pts: F64, pose: F64, cfg: LoopConfig) -> _Match:
         return _Match(pose, inliers, 0.0, np.eye(3), rms)
     a = _rot3(-pose[2])  # (t, yaw) added -> right perturbation (t = R ρ)
     return _Match(pose, inliers, condition, a @ cov_add @ a.T, rms)
+
+
+def _free_space_conflicts(sub: F64, query: F64, pose: F64, cfg: LoopConfig, bins: int = 360) -> float:
+    """The share of submap points (``sub``, (M, 2)) that the query scan's beams passed through.
+
+    ``query`` (N, 2) are the keyframe's points in its own frame, placed at ``pose`` in the
+    submap. Per bearing bin (1°), the query's nearest return; a submap point in that bin more
+    than 2 · ``inlier_distance`` closer than it lies where every beam of the bin saw free
+    space. A place that merely looks alike has walls where the keyframe saw through.
+    """
+    r_q = np.hypot(query[:, 0], query[:, 1])
+    b_q = ((np.arctan2(query[:, 1], query[:, 0]) + np.pi) * (bins / (2.0 * np.pi))).astype(np.int64) % bins
+    nearest = np.full(bins, np.inf)
+    np.minimum.at(nearest, b_q, r_q)
+    p = se2_apply(se2_inverse(pose), sub)
+    r = np.hypot(p[:, 0], p[:, 1])
+    b = ((np.arctan2(p[:, 1], p[:, 0]) + np.pi) * (bins / (2.0 * np.pi))).astype(np.int64) % bins
+    seen = np.isfinite(nearest[b]) & (r > 3.0 * cfg.inlier_distance)
+    n = int(seen.sum())
+    if n == 0:
+        return 0.0
+    return float(np.sum(seen & (r < nearest[b] - 2.0 * cfg.inlier_distance)) / n)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -569,10 +620,73 @@ def _nonlinear_solve(p0: F64, a: NDArray[np.int64], b: NDArray[np.int64], z: F64
     return p, {"nfev": nfev, "status": status, "cost": cost, "seconds": time.perf_counter() - t0}
 
 
+def _pairwise_consistent(p0: F64, odom_cov: F64, la: NDArray[np.int64], lb: NDArray[np.int64], lz: F64,
+                         loop_cov: F64, window: int, chi2_max: float) -> NDArray[np.bool_]:
+    """The largest set of mutually consistent loops found greedily (pairwise consistency, as PCM).
+
+    Two loops whose ends are within ``window`` nodes of each other's must agree on where the
+    second's later end lies, through the chain's short stretches between their ends: the
+    cycle ``Z_i · T(b_i → b_j)`` against ``T(a_i → a_j) · Z_j``, its χ² taken with both loops'
+    covariances and the stretches' (summed along the chain, the heading's share growing with
+    the stretch's length). Loops farther apart are not compared. Then, while any pair
+    disagrees, the loop in most disagreements is dropped. A false loop can agree with the
+    registration alone (it is the odometry that decides), but not with the true loops around it.
+    """
+    n_loops = la.shape[0]
+    keep = np.ones(n_loops, dtype=bool)
+    if n_loops < 2:
+        return keep
+    lo, hi = np.minimum(la, lb), np.maximum(la, lb)
+    flip = la > lb  # orient every loop forward: T_lo_hi
+    z = lz.copy()
+    if np.any(flip):
+        z[flip] = se2_inverse(lz[flip])
+    step = np.hypot(*(p0[1:, :2] - p0[:-1, :2]).T)
+    path = np.concatenate([[0.0], np.cumsum(step)])
+    var_t = np.concatenate([[0.0], np.cumsum(0.5 * (odom_cov[:, 0, 0] + odom_cov[:, 1, 1]))])
+    var_r = np.concatenate([[0.0], np.cumsum(odom_cov[:, 2, 2])])
+    loop_t = 0.5 * (loop_cov[:, 0, 0] + loop_cov[:, 1, 1])
+    loop_r = loop_cov[:, 2, 2]
+    i, j = np.triu_indices(n_loops, k=1)
+    near = (np.abs(lo[i] - lo[j]) <= window) & (np.abs(hi[i] - hi[j]) <= window)
+    i, j = i[near], j[near]
+    if i.size == 0:
+        return keep
+
+    def stretch(u: NDArray[np.int64], v: NDArray[np.int64]) -> tuple[F64, F64, F64]:
+        a, b = np.minimum(u, v), np.maximum(u, v)
+        length = path[b] - path[a]
+        vr = var_r[b] - var_r[a]
+        return se2_between(p0[u], p0[v]), var_t[b] - var_t[a] + vr * length**2 / 3.0, vr
+
+    t_hi, vt_hi, vr_hi = stretch(hi[i], hi[j])
+    t_lo, vt_lo, vr_lo = stretch(lo[i], lo[j])
+    via_i = se2_compose(z[i], t_hi)
+    via_j = se2_compose(t_lo, z[j])
+    d = via_i - via_j
+    d[:, 2] = wrap_angle(d[:, 2])
+    # the second loop's error reaches the cycle turned by the first stretch; heading errors of
+    # the loops themselves move the far end by their lever arm
+    arm2 = np.sum(t_hi[:, :2] ** 2, axis=1) + np.sum(t_lo[:, :2] ** 2, axis=1)
+    vt = loop_t[i] + loop_t[j] + vt_hi + vt_lo + (loop_r[i] + loop_r[j]) * arm2
+    vr = loop_r[i] + loop_r[j] + vr_hi + vr_lo
+    chi2 = (d[:, 0] ** 2 + d[:, 1] ** 2) / vt + d[:, 2] ** 2 / vr
+    bad = chi2 > chi2_max
+    i, j = i[bad], j[bad]
+    while i.size:
+        counts = np.bincount(np.concatenate([i, j]), minlength=n_loops)
+        worst = int(np.argmax(counts))
+        keep[worst] = False
+        alive = (i != worst) & (j != worst)
+        i, j = i[alive], j[alive]
+    return keep
+
+
 def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, loop_a: ArrayLike,
                      loop_b: ArrayLike, loop_z: ArrayLike, loop_info: ArrayLike, *, kernel_chi2: float = 25.0,
                      reject_chi2: float = 50.0, max_rejection_rounds: int = 10, max_nfev: int = 50,
-                     tolerance: float = 1e-6) -> tuple[F64, NDArray[np.bool_], dict[str, Any]]:
+                     tolerance: float = 1e-6, pairwise_window: int = 50, pairwise_chi2: float = 25.0
+                     ) -> tuple[F64, NDArray[np.bool_], dict[str, Any]]:
     """Solve a pose graph whose nodes form a chain, with extra (loop) edges; reject false loops.
 
     ``poses`` (K, 3): the nodes' initial poses (the chain composed); node 0 stays fixed (gauge).
@@ -580,6 +694,8 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
     (K-1, 3, 3) its information. ``loop_a``, ``loop_b`` (L,) node numbers, ``loop_z`` (L, 3)
     ``T_a_b``, ``loop_info`` (L, 3, 3).
 
+    0. Loops that disagree with the loops around them (ends within ``pairwise_window`` nodes;
+       disagreement χ² above ``pairwise_chi2``) are dropped, the one in most disagreements first.
     1. A robust linear initial estimate: orientations then positions by sparse linear least
        squares (LAGO, Carlone et al. 2014), the loops re-weighted with a Cauchy kernel on their
        χ² whose scale shrinks to 20 × ``kernel_chi2`` (the linear estimate is approximate: true
@@ -591,7 +707,8 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
     3. Loops whose χ² still exceeds ``reject_chi2`` are dropped and the graph solved with the
        rest at full weight, until none does (at most ``max_rejection_rounds`` times).
 
-    Returns (poses (K, 3), kept (L,) bool, info: ``nfev``, ``rejected_after_solve``, ``seconds``).
+    Returns (poses (K, 3), kept (L,) bool, info: ``nfev``, ``rejected_pairwise``,
+    ``rejected_after_solve``, ``seconds``).
     """
     t0 = time.perf_counter()
     p0 = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -609,7 +726,7 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
         raise ValueError("loop_a, loop_b, loop_z and loop_info must have one entry per loop")
     if n_loops and (np.any(la < 0) or np.any(lb < 0) or np.any(la >= n) or np.any(lb >= n) or np.any(la == lb)):
         raise ValueError("loop edges must join two different existing nodes")
-    info: dict[str, Any] = {"nfev": 0, "rejected_after_solve": 0, "seconds": 0.0}
+    info: dict[str, Any] = {"nfev": 0, "rejected_pairwise": 0, "rejected_after_solve": 0, "seconds": 0.0}
     kept = np.ones(n_loops, dtype=bool)
     if n < 2 or n_loops == 0:
         return p0.copy(), kept, info
@@ -620,15 +737,23 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
     cov = np.linalg.inv(lam)
     n_chain = n - 1
 
+    # 0. loops that disagree with the loops around them
+    if pairwise_window > 0:
+        kept &= _pairwise_consistent(p0, cov[:n_chain], la, lb, lz, cov[n_chain:], pairwise_window, pairwise_chi2)
+        info["rejected_pairwise"] = int(n_loops - kept.sum())
+        if not kept.any():
+            info["seconds"] = time.perf_counter() - t0
+            return p0.copy(), kept, info
+
     # 1. robust linear estimate (graduated Cauchy re-weighting of the loops, down to a wide scale)
-    weights = np.ones(n + n_loops - 1)
+    weights = np.concatenate([np.ones(n_chain), kept.astype(np.float64)])
     p_lin = _linear_estimate(p0, a, b, z, cov, n_chain, weights)
     chi2 = loop_chi2(p_lin, la, lb, lz, li)
     floor = _LINEAR_FLOOR * kernel_chi2
-    c2 = max(float(chi2.max()), floor)
+    c2 = max(float(chi2[kept].max()), floor)
     for _ in range(60):
         c2 = max(c2 / 4.0, floor)
-        new = 1.0 / (1.0 + chi2 / c2)
+        new = kept / (1.0 + chi2 / c2)
         done = c2 == floor and float(np.max(np.abs(new - weights[n_chain:]))) < 1e-3
         weights[n_chain:] = new
         p_lin = _linear_estimate(p0, a, b, z, cov, n_chain, weights)
@@ -651,7 +776,7 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
         scales.append(max(scales[-1] / _GNC_RATIO, 1.0))
     for scale in scales:  # (only the weights matter: a few steps each)
         p = solve(p, weights[n_chain:], min(max_nfev, _RESTART_NFEV))
-        weights[n_chain:] = 1.0 / (1.0 + loop_chi2(p, la, lb, lz, li) / (scale * kernel_chi2))
+        weights[n_chain:] = kept / (1.0 + loop_chi2(p, la, lb, lz, li) / (scale * kernel_chi2))
 
     # 3. loops that still do not fit are dropped, all above reject_chi2 at once (their weights kept
     # a false loop from raising the others' χ²), and the graph solved with the rest at full weight
@@ -669,7 +794,7 @@ def solve_pose_graph(poses: ArrayLike, odom_z: ArrayLike, odom_info: ArrayLike, 
             break
         if bad.size == 0 and np.all(weights[n_chain:][kept] == 1.0):
             break
-        weights[n_chain:] = 1.0
+        weights[n_chain:] = kept.astype(np.float64)
         p = solve(p, weights[n_chain:], max_nfev)
     info["seconds"] = time.perf_counter() - t0
     return p, kept, info
@@ -710,6 +835,28 @@ class _Buffer:
         return int(self._data.nbytes)
 
 
+def _blend_corrections(before: F64, kf: NDArray[np.int64], kf_scan: NDArray[np.int64], raw: F64, solved: F64) -> F64:
+    """Every scan's corrected pose: its registered pose ``before`` moved by the correction of its keyframe
+    (``solved · raw⁻¹``, in the map frame), blended linearly into the next keyframe's by the scan's place
+    between the two (scan numbers). A scan moved rigidly with its keyframe would jump against the next
+    keyframe's scans wherever the corrections of two keyframes differ, doubling walls at cell scale."""
+    corr = se2_compose(solved, se2_inverse(raw))  # (K, 3): T_corrected_registered of each keyframe
+    n = before.shape[0]
+    k0 = np.asarray(kf, np.intp)
+    k1 = np.minimum(k0 + 1, corr.shape[0] - 1)
+    s0 = np.asarray(kf_scan, np.float64)[k0]
+    s1 = np.asarray(kf_scan, np.float64)[k1]
+    idx = np.arange(n, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(s1 > s0, (idx - s0) / (s1 - s0), 0.0)
+    f = np.clip(f, 0.0, 1.0)[:, None]
+    c0, c1 = corr[k0], corr[k1]
+    d = c1 - c0
+    d[:, 2] = wrap_angle(d[:, 2])
+    c = c0 + f * d
+    return se2_compose(c, before)
+
+
 class LoopCloser:
     """Keyframes, loop detection and verification while a tour is registered; a robust pose graph at the end.
 
@@ -736,6 +883,7 @@ class LoopCloser:
         # keyframes
         self._kf_pose = _Buffer(3)  # T_map_kf from registration
         self._kf_dist = _Buffer(1)  # distance driven up to the keyframe, m
+        self._kf_var_yaw = _Buffer(1)  # the registration's heading variance accumulated up to the keyframe, rad²
         self._kf_scan = _Buffer(1, np.int64)  # the keyframe's scan index
         self._kf_key = _Buffer(cfg.descriptor_rings, np.float32)
         self._kf_desc: list[NDArray[np.bool_]] = []  # the descriptors (0/1 cells, kept as bool)
@@ -745,13 +893,16 @@ class LoopCloser:
         self._odom_info = _Buffer(9)
         self._loops: list[_Loop] = []
         self._last_loop: _Loop | None = None  # the last loop found, carried forward as a candidate
+        self._pending: list[_Loop] = []  # loops verified but not yet confirmed by a second one
         # the running state
         self._last_pose: F64 | None = None
         self._dist = 0.0
         self._cov = np.zeros((3, 3))  # covariance of the current scan relative to its keyframe
         self._counts = {"candidates": 0, "verified": 0, "accepted": 0, "rejected_inliers": 0,
-                        "rejected_degenerate": 0, "rejected_gate": 0, "from_tracked": 0, "from_position": 0,
-                        "from_descriptor": 0, "external": 0}
+                        "rejected_degenerate": 0, "rejected_fit": 0, "rejected_gate": 0, "skipped_retry": 0,
+                        "unconfirmed": 0, "from_tracked": 0, "from_position": 0, "from_descriptor": 0,
+                        "external": 0}
+        self._failed: dict[int, int] = {}  # place (keyframe) -> the keyframe whose verification against it failed
         self._seconds_search = 0.0
 
     # -- public ------------------------------------------------------------------------------
@@ -773,8 +924,8 @@ class LoopCloser:
     def memory_bytes(self) -> int:
         """Approximate bytes held: keyframe points and descriptors, per-scan and per-keyframe arrays."""
         total = sum(int(p.nbytes) for p in self._kf_points) + sum(int(d.nbytes) for d in self._kf_desc)
-        for buf in (self._scan_index, self._scan_kf, self._scan_rel, self._kf_pose, self._kf_dist, self._kf_scan,
-                    self._kf_key, self._odom_z, self._odom_info):
+        for buf in (self._scan_index, self._scan_kf, self._scan_rel, self._kf_pose, self._kf_dist, self._kf_var_yaw,
+                    self._kf_scan, self._kf_key, self._odom_z, self._odom_info):
             total += buf.nbytes
         return total
 
@@ -808,9 +959,11 @@ class LoopCloser:
             self._scan_rel.append(rel)
             return
         # a new keyframe
+        var_yaw = 0.0
         if n_kf:
             self._odom_z.append(rel)
             self._odom_info.append(_inverse_spd(self._cov).ravel())
+            var_yaw = float(self._kf_var_yaw.view[-1, 0] + self._cov[2, 2])
         self._cov = np.zeros((3, 3))
         self._scan_index.append(index)
         self._scan_kf.append(n_kf)
@@ -820,6 +973,7 @@ class LoopCloser:
         prepared = self._prepare(pts)
         self._kf_pose.append(p)
         self._kf_dist.append(self._dist)
+        self._kf_var_yaw.append(var_yaw)
         self._kf_scan.append(index)
         desc = scan_context(prepared[0], cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
         self._kf_desc.append(desc > 0.5)
@@ -856,12 +1010,15 @@ class LoopCloser:
     def optimise(self) -> LoopResult:
         """Solve the keyframe pose graph; corrected poses for every scan added.
 
-        ``stats``: ``scans``, ``keyframes``, ``candidates`` (candidate places verified or
-        skipped), ``verified`` (ICP runs), ``accepted`` (loops found by verification),
-        ``external``, ``rejected_inliers`` / ``rejected_degenerate`` / ``rejected_gate`` (at
-        verification), ``rejected_after_solve`` (dropped by the robust solve), ``loops``
-        (kept), ``seconds_search``, ``seconds_solve``, ``max_correction_m``,
-        ``max_correction_rad``, ``solver_evaluations``, ``memory_bytes``.
+        ``stats``: ``scans``, ``keyframes``; ``candidates`` (places verified) and ``verified``
+        (ICP runs); ``accepted`` (loops that passed verification: ``from_tracked``,
+        ``from_position``, ``from_descriptor``) and ``external``; rejected at verification:
+        ``rejected_inliers``, ``rejected_degenerate``, ``rejected_fit`` (RMS or free space),
+        ``rejected_gate``; ``skipped_retry``; ``unconfirmed`` (never joined the graph);
+        rejected by the solve: ``rejected_pairwise``, ``rejected_after_solve``; ``loops``
+        (kept); ``seconds_search``, ``seconds_solve``, ``solver_evaluations``;
+        ``max_correction_m`` and ``max_correction_rad`` (largest change of a scan's pose);
+        ``memory_bytes``. Can be called again after more :meth:`add` calls.
         """
         t0 = time.perf_counter()
         cfg = self.cfg
@@ -879,20 +1036,22 @@ class LoopCloser:
                     [lp.b for lp in loops], [lp.z for lp in loops], [lp.info for lp in loops],
                     kernel_chi2=cfg.kernel_chi2, reject_chi2=cfg.reject_chi2,
                     max_rejection_rounds=cfg.max_rejection_rounds, max_nfev=cfg.max_nfev,
-                    tolerance=cfg.tolerance)
+                    tolerance=cfg.tolerance, pairwise_window=cfg.pairwise_window, pairwise_chi2=cfg.pairwise_chi2)
             except np.linalg.LinAlgError as exc:  # pragma: no cover - a degenerate graph
                 log.warning("loop closure: the pose graph could not be solved (%s); poses left as registered", exc)
                 stats["solver_failed"] = True
                 poses, keep, info = raw, np.zeros(len(loops), dtype=bool), {"nfev": 0, "rejected_after_solve": 0}
             kept = [lp for lp, k in zip(loops, keep) if k]
+            stats["rejected_pairwise"] = int(info.get("rejected_pairwise", 0))
             rejected = int(info["rejected_after_solve"])
             nfev = int(info["nfev"])
         else:
             poses = raw
         kf = self._scan_kf.view[:, 0]
         rel = self._scan_rel.view
-        out = se2_compose(poses[kf], rel) if kf.size else np.zeros((0, 3))
         before = se2_compose(raw[kf], rel) if kf.size else np.zeros((0, 3))
+        out = _blend_corrections(before, kf, self._kf_scan.view[:, 0], raw, poses) if kf.size else before
+        stats.setdefault("rejected_pairwise", 0)
         stats["rejected_after_solve"] = rejected
         stats["loops"] = len(kept)
         stats["seconds_search"] = round(self._seconds_search, 4)
@@ -956,21 +1115,15 @@ class LoopCloser:
         # (keyframe j, guess T_j_k, kind), best first
         tracked: list[tuple[int, F64, str]] = []
         if self._last_loop is not None and k - self._last_loop.b <= cfg.track_keyframes:
-            # the last loop, carried forward by the registration: T_a_k = Z · T_b_k
-            lp = self._last_loop
-            pred = se2_compose(lp.z, se2_between(poses[lp.b], pk))
-            lo, hi = max(0, lp.a - 2 * cfg.track_keyframes), min(last, lp.a + 2 * cfg.track_keyframes)
-            if lo <= hi:
-                near = se2_between(poses[lp.a], old[lo: hi + 1])
-                # the nearest keyframe, preferring one that looked the same way (1 m per rad)
-                cost = np.hypot(near[:, 0] - pred[0], near[:, 1] - pred[1]) + np.abs(wrap_angle(near[:, 2] - pred[2]))
-                j = lo + int(np.argmin(cost))
-                tracked.append((j, se2_compose(se2_between(old[j], poses[lp.a]), pred), "tracked"))
+            follow = self._follow(self._last_loop, k, last)
+            if follow is not None:
+                tracked.append((follow[0], follow[1], "tracked"))
         by_position: list[tuple[int, F64, str]] = []
         dist = np.hypot(old[:, 0] - pk[0], old[:, 1] - pk[1])
         radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[: last + 1, 0])
         near_idx = np.flatnonzero(dist <= radius)
-        for j in near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]:
+        near_idx = near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]
+        for j in near_idx[: 10 * cfg.max_candidates * max(cfg.submap_keyframes, 1)]:  # enough for the places
             by_position.append((int(j), se2_between(old[j], pk), "position"))
         by_descriptor: list[tuple[int, F64, str]] = []
         if cfg.descriptor:
@@ -989,12 +1142,17 @@ class LoopCloser:
         merged = list(tracked)
         for i in range(max(len(by_position), len(by_descriptor))):
             merged += [lst[i] for lst in (by_descriptor, by_position) if i < len(lst)]
+        self._failed = {j: kf for j, kf in self._failed.items() if k - kf <= cfg.retry_keyframes}
         places: list[tuple[int, list[F64], list[str]]] = []
         for j, guess, kind in merged:
             home = next((pl for pl in places if abs(pl[0] - j) <= cfg.submap_keyframes), None)
             if home is None:
-                if len(places) < cfg.max_candidates:
-                    places.append((j, [guess], [kind]))
+                if len(places) >= cfg.max_candidates:
+                    break
+                if kind != "tracked" and any(abs(jf - j) <= cfg.submap_keyframes for jf in self._failed):
+                    self._counts["skipped_retry"] += 1  # failed a moment ago: the view has hardly changed
+                    continue
+                places.append((j, [guess], [kind]))
             elif len(home[1]) < 3 and kind not in home[2]:  # the guess in the home keyframe's frame
                 home[1].append(se2_compose(se2_between(old[home[0]], old[j]), guess))
                 home[2].append(kind)
@@ -1002,14 +1160,85 @@ class LoopCloser:
         for j, guesses, kinds in places:
             self._counts["candidates"] += 1
             loop = self._verify(j, k, source, dense, guesses, kinds)
-            if loop is not None:
-                self._loops.append(loop)
-                self._last_loop = loop
+            if loop is None:
+                self._failed[j] = k
+            else:
+                self._keep(loop, k)
                 self._counts["accepted"] += 1
                 self._counts[f"from_{loop.kind}"] += 1
+                if loop.kind != "tracked":
+                    self._backfill(loop)
+                self._last_loop = loop
                 found += 1
                 if found >= cfg.max_loops_per_keyframe:
                     break
+
+    def _follow(self, loop: _Loop, k: int, last: int) -> tuple[int, F64] | None:
+        """A loop carried to keyframe ``k`` by the registration (``T_a_k = Z · T_b_k``): the keyframe
+        up to ``last`` nearest to where it puts k (preferring one that looked the same way, 1 m per
+        rad), and the guess ``T_j_k``."""
+        poses = self._kf_pose.view
+        pred = se2_compose(loop.z, se2_between(poses[loop.b], poses[k]))
+        span = 2 * self.cfg.track_keyframes
+        lo, hi = max(0, loop.a - span), min(last, loop.a + span)
+        if lo > hi:
+            return None
+        near = se2_between(poses[loop.a], poses[lo: hi + 1])
+        cost = np.hypot(near[:, 0] - pred[0], near[:, 1] - pred[1]) + np.abs(wrap_angle(near[:, 2] - pred[2]))
+        j = lo + int(np.argmin(cost))
+        return j, se2_compose(se2_between(poses[j], poses[loop.a]), pred)
+
+    def _backfill(self, loop: _Loop) -> None:
+        """A loop found late: carry it back over the keyframes before it that found none (the drift
+        hid the place from them), as long as they match."""
+        cfg = self.cfg
+        have = {lp.b for lp in self._loops} | {lp.b for lp in self._pending}
+        for k in range(loop.b - 1, max(loop.b - cfg.track_keyframes, 0) - 1, -1):
+            if k in have:
+                break
+            follow = self._follow(loop, k, k - cfg.min_separation)
+            stored = self._kf_points[k][:, :2].astype(np.float64)
+            if follow is None or stored.shape[0] < cfg.min_points:
+                break
+            source = self._prepare(stored)[1]
+            self._counts["candidates"] += 1
+            found = self._verify(follow[0], k, source, stored, [follow[1]], ["tracked"])
+            if found is None:
+                break
+            self._keep(found, loop.b)
+            self._counts["accepted"] += 1
+            self._counts["from_tracked"] += 1
+            loop = found
+
+    def _keep(self, loop: _Loop, k: int) -> None:
+        """Into the graph once confirmed: when it agrees with a loop already kept, or when it and
+        the pending loops that agree with it number ``confirm`` (all found within
+        ``track_keyframes``). A revisit yields a run of agreeing loops; a place that only looks
+        alike rarely does."""
+        cfg = self.cfg
+        if cfg.confirm <= 1:
+            self._loops.append(loop)
+            return
+        stale = [lp for lp in self._pending if k - lp.b > cfg.track_keyframes]
+        self._counts["unconfirmed"] += len(stale)
+        self._pending = [lp for lp in self._pending if k - lp.b <= cfg.track_keyframes]
+        recent = [lp for lp in self._loops[-cfg.track_keyframes:] if k - lp.b <= cfg.track_keyframes]
+        group = [lp for lp in self._pending if self._agree(lp, loop)]
+        if any(self._agree(lp, loop) for lp in recent) or len(group) + 1 >= cfg.confirm:
+            self._loops.extend(group + [loop])
+            self._pending = [p for p in self._pending if not any(p is lp for lp in group)]
+        else:
+            self._pending.append(loop)
+
+    def _agree(self, first: _Loop, second: _Loop) -> bool:
+        """Whether two loops put ``second.b`` at the same place relative to ``first.a`` (through the
+        registration's short stretches between the two ends of each)."""
+        poses = self._kf_pose.view
+        via_first = se2_compose(first.z, se2_between(poses[first.b], poses[second.b]))
+        via_second = se2_compose(se2_between(poses[first.a], poses[second.a]), second.z)
+        d = via_first - via_second
+        return bool(math.hypot(d[0], d[1]) <= self.cfg.confirm_distance
+                    and abs(float(wrap_angle(float(d[2])))) <= self.cfg.confirm_angle)
 
     def _verify(self, j: int, k: int, source: F64, dense: F64, guesses: list[F64], kinds: list[str]
                 ) -> _Loop | None:
@@ -1046,6 +1275,7 @@ class LoopCloser:
             sub_fine = _Submap(near[:, :2], near[:, 2])
         else:
             sub_fine = sub
+        full_query = dense
         if dense.shape[0] > cfg.max_query_points:
             dense = dense[np.linspace(0, dense.shape[0] - 1, cfg.max_query_points).astype(np.int64)]
         q3 = np.zeros((source.shape[0], 3))
@@ -1056,6 +1286,12 @@ class LoopCloser:
         for guess, kind in zip(guesses, kinds):
             icp = matcher.align(query, guess)
             if not np.all(np.isfinite(icp)):
+                continue
+            share = _overlap(sub, source, icp, cfg)
+            if share < 0.5 * cfg.min_inliers:  # hopeless: not worth refining
+                quick = _Match(icp, share, 0.0, np.eye(3), float("inf"))
+                if best is None or quick.inliers > best.inliers:
+                    best, best_kind = quick, kind
                 continue
             pose = _align(sub_fine, dense, icp, cfg)
             if sub_fine is not sub and _overlap(sub_fine, dense, pose, cfg) < 0.5 * cfg.min_inliers:
@@ -1073,10 +1309,22 @@ class LoopCloser:
             self._counts["rejected_degenerate"] += 1
             log.debug("loop %d-%d: degenerate match (condition %.3g)", j, k, best.condition)
             return None
+        conflicts = _free_space_conflicts(whole[:, :2], full_query, best.pose, cfg)
+        if best.rms > cfg.max_rms or conflicts > cfg.max_conflicts:
+            self._counts["rejected_fit"] += 1
+            log.debug("loop %d-%d: loose fit (rms %.3f m, %.0f%% of the place seen through)", j, k, best.rms,
+                      100 * conflicts)
+            return None
         if cfg.gate_factor > 0:
+            # where the loop puts keyframe k against where the registration did: at most gate_factor
+            # times the search radius away, and turned by at most gate_factor times three standard
+            # deviations of the registration's heading over the stretch (plus 0.05 rad)
             said = se2_compose(poses[j], best.pose)
             radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[j, 0])
-            if math.hypot(said[0] - poses[k, 0], said[1] - poses[k, 1]) > cfg.gate_factor * radius:
+            yaw_sd = math.sqrt(max(float(self._kf_var_yaw.view[k, 0] - self._kf_var_yaw.view[j, 0]), 0.0))
+            turn = abs(float(wrap_angle(float(said[2] - poses[k, 2]))))
+            if (math.hypot(said[0] - poses[k, 0], said[1] - poses[k, 1]) > cfg.gate_factor * radius
+                    or turn > cfg.gate_factor * (3.0 * yaw_sd + 0.05)):
                 self._counts["rejected_gate"] += 1
                 log.debug("loop %d-%d: correction beyond the gate", j, k)
                 return None

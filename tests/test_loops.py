@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from test_register import _cast as _cast_rays
 
 from semmap.geometry import se2_apply, se2_between, se2_compose, wrap_angle
 from semmap.register.loops import (
@@ -35,16 +36,7 @@ def _box(cx: float, cy: float, w: float, h: float) -> list[tuple[float, float, f
 
 def _cast(origin: np.ndarray, heading: np.ndarray, segments: np.ndarray, max_range: float) -> np.ndarray:
     """Range of each ray to the nearest segment (M, 4); inf on a miss or beyond max_range."""
-    d = np.column_stack([np.cos(heading), np.sin(heading)])[:, None, :]
-    a, b = segments[None, :, :2], segments[None, :, 2:]
-    e = b - a
-    w = a - origin
-    den = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[..., 0] * e[..., 1] - w[..., 1] * e[..., 0]) / den
-        u = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
-    ok = (np.abs(den) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
-    r = np.where(ok, t, np.inf).min(axis=1)
+    r = _cast_rays(origin, heading, segments)
     r[r > max_range] = np.inf
     return r
 

@@ -13,9 +13,13 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
     KISS-ICP alone, as upstream does it: scan-to-local-map ICP from a
     constant-velocity guess; the ICP result goes into the local map.
 ``fused`` (default)
-    An SE(2) EKF predicts with the odometry increment between consecutive scans;
-    ICP starts from that prediction; its result is a pose measurement, gated by
-    its Mahalanobis distance (chi-square, ``ekf.gate_chi2``). With ``ekf.fit_margin``
+    An EKF predicts with the odometry increment between consecutive scans, corrected
+    by the odometry's systematic errors it has learnt (:mod:`~semmap.register.ekf`), with
+    a noise scaled to the odometry's disagreement with ICP over recent stretches
+    (``ekf.adapt_window``); ICP starts from that prediction; its result is a pose
+    measurement (covariance: :meth:`Registrar._icp_covariance`; a degenerate match
+    leaves the direction it cannot see to odometry), gated by its Mahalanobis distance
+    (chi-square, ``ekf.gate_chi2``). With ``ekf.fit_margin``
     below 1, a result beyond the gate is still taken (the filter restarts from it)
     when the scan lies on the local map better at ICP's pose than at the prediction:
     real wheel odometry drifts in heading and scale more than any noise model
@@ -28,6 +32,10 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
     restarts from the ICP pose (wheel slip, a kidnapped robot). Without odometry
     at this scan or the previous one, the step runs as in ``icp`` mode and the
     filter restarts from the ICP pose.
+
+With ``loop_closure.enabled``, every registered scan also goes to a
+:class:`~semmap.register.loops.LoopCloser`; :meth:`Registrar.close_loops` solves its pose graph
+at the end of the tour.
 
 With ``exclude_dynamic``, points painted :attr:`~semmap.records.Mobility.DYNAMIC`
 are neither matched nor inserted into the local map. Only beams with ``hit`` set

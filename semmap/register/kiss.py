@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..config import RegistrationConfig
 from ..geometry import se2_to_se3, se3_inverse, se3_to_se2
 
-__all__ = ["KissMatcher", "PreparedScan", "line_normals", "match_information"]
+__all__ = ["KissMatcher", "PreparedScan", "line_normals", "match_information", "sweep_information"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +101,35 @@ def match_information(points: NDArray[np.float64], normals: NDArray[np.float64])
     return j.T @ j
 
 
+def sweep_information(points: NDArray[np.float64], radius: float, spacing: float, step: int = 2,
+                      max_flatness: float = 0.2) -> NDArray[np.float64]:
+    """:func:`match_information` of a scan's returns in sweep order (N, 2), with no neighbour search.
+
+    Each return's line is the chord between the returns ``step`` beams before and after it, when both
+    lie within ``radius`` of it and it lies within ``max_flatness`` of the chord's half-length from it
+    (else: a corner, an edge, clutter, left out). Each return counts by the length of surface it
+    stands for (the chord over ``2 · step`` beams, in units of ``spacing``), so near walls, which a
+    LiDAR samples densely, do not outweigh far ones, as voxel down-sampling has it.
+    """
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    n = p.shape[0]
+    if n < 2 * step + 1:
+        return np.zeros((3, 3))
+    mid, before, after = p[step:n - step], p[:n - 2 * step], p[2 * step:]
+    chord = after - before
+    length = np.hypot(chord[:, 0], chord[:, 1])
+    near = (np.hypot(*(before - mid).T) < radius) & (np.hypot(*(after - mid).T) < radius) & (length > 1e-6)
+    off = np.abs(chord[:, 0] * (mid[:, 1] - before[:, 1]) - chord[:, 1] * (mid[:, 0] - before[:, 0]))
+    ok = near & (off <= max_flatness * 0.5 * length * np.maximum(length, 1e-12))
+    if not np.any(ok):
+        return np.zeros((3, 3))
+    c, q, ln = chord[ok], mid[ok], length[ok]
+    nrm = np.column_stack([-c[:, 1], c[:, 0]]) / ln[:, None]
+    j = np.column_stack([nrm[:, 0], nrm[:, 1], -nrm[:, 0] * q[:, 1] + nrm[:, 1] * q[:, 0]])
+    w = ln / (2.0 * step) / spacing
+    return (j * w[:, None]).T @ j
+
+
 class KissMatcher:
     """KISS-ICP's local map, adaptive threshold and registration, driven step by step.
 
@@ -151,9 +180,8 @@ class KissMatcher:
             scale = float(source.shape[0] / self._max_source)
             source = self._down(map_points, self._voxel * 1.5 * scale)
         source = np.ascontiguousarray(source, dtype=np.float64)
-        normals = line_normals(source[:, :2], map_points[:, :2], 2.0 * self._voxel)
         return PreparedScan(np.ascontiguousarray(map_points, dtype=np.float64), source,
-                            match_information(source[:, :2], normals))
+                            sweep_information(pts, 2.0 * self._voxel, self._voxel))
 
     @property
     def map_empty(self) -> bool:

@@ -12,7 +12,7 @@ from semmap.geometry import se2_between, se2_compose
 from semmap.grid.consistency import EndpointSample, consistency_score, place, wall_thickness
 from semmap.records import GridSpec, Mobility, PaintedScan
 from semmap.register import Registrar
-from semmap.register.kiss import line_normals, match_information
+from semmap.register.kiss import sweep_information
 
 
 def _drifting_odometry(poses, heading_drift=0.0, turn_scale=1.0, drive_scale=1.0):
@@ -48,16 +48,16 @@ def _eig_ratio(H):
 
 def test_a_corridor_leaves_the_direction_along_it_unconstrained_and_a_room_does_not():
     pts = _points((0.0, 0.0, 0.3), CORRIDOR)
-    H = match_information(pts, line_normals(pts, pts, 0.3))
+    H = sweep_information(pts, 0.3, 0.15)
     assert _eig_ratio(H) < 0.01
     # the weak direction is the corridor's (x in the world, -0.3 rad in the scan's frame)
     _, v = np.linalg.eigh(H[:2, :2])
     assert abs(abs(v[:, 0] @ np.array([np.cos(-0.3), np.sin(-0.3)])) - 1.0) < 1e-3
     room = _points((0.5, -0.5, 0.3), ROOM)
-    assert _eig_ratio(match_information(room, line_normals(room, room, 0.3))) > 0.2
+    assert _eig_ratio(sweep_information(room, 0.3, 0.15)) > 0.2
     # clutter (isolated points: chair legs) carries no direction at all
     legs = np.array([[1.0, 0.0], [0.0, 2.0], [-1.5, 0.5], [2.0, -2.0]])
-    assert not match_information(legs, line_normals(legs, legs, 0.3)).any()
+    assert not sweep_information(legs, 0.3, 0.15).any()
 
 
 def _corridor_scan(pose, rng, i):

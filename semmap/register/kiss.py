@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..config import RegistrationConfig
 from ..geometry import se2_to_se3, se3_inverse, se3_to_se2
 
-__all__ = ["KissMatcher", "PreparedScan", "line_normals", "match_information", "sweep_information"]
+__all__ = ["KissMatcher", "PreparedScan", "sweep_information"]
 
 log = logging.getLogger(__name__)
 
@@ -43,67 +43,20 @@ class PreparedScan:
     map_points: NDArray[np.float64]
     source: NDArray[np.float64]
     #: the point-to-line Hessian of the match (3x3, base frame, per unit residual variance): see
-    #: :func:`match_information`
+    #: :func:`sweep_information`
     information: NDArray[np.float64] = field(default_factory=lambda: np.zeros((3, 3)))
 
 
-def line_normals(points: NDArray[np.float64], surface: NDArray[np.float64], radius: float,
-                 neighbours: int = 8, max_flatness: float = 0.2) -> NDArray[np.float64]:
-    """The normal (N, 2) of the line each of ``points`` lies on, fitted to the ``surface`` points within
-    ``radius``: the direction of least spread. NaN where the neighbourhood is no line (fewer than 3
-    neighbours, or a spread across above ``max_flatness`` of the spread along: a chair leg, a corner,
-    clutter)."""
-    pts = np.asarray(points, np.float64).reshape(-1, 2)
-    surf = np.asarray(surface, np.float64).reshape(-1, 2)
-    out = np.full(pts.shape, np.nan)
-    if pts.shape[0] == 0 or surf.shape[0] < 3:
-        return out
-    from scipy.spatial import cKDTree
-
-    k = min(neighbours, surf.shape[0])
-    d, idx = cKDTree(surf).query(pts, k=k, distance_upper_bound=radius)
-    found = np.isfinite(d)  # (N, k)
-    count = found.sum(axis=1)
-    nb = surf[np.where(found, idx, 0)]  # (N, k, 2); rows past the last neighbour are masked below
-    w = found[..., None].astype(np.float64)
-    mean = (nb * w).sum(axis=1) / np.maximum(count, 1)[:, None]
-    c = (nb - mean[:, None, :]) * w
-    cxx = (c[..., 0] ** 2).sum(axis=1)
-    cyy = (c[..., 1] ** 2).sum(axis=1)
-    cxy = (c[..., 0] * c[..., 1]).sum(axis=1)
-    # eigen-decomposition of each 2x2 covariance in closed form
-    half_tr = 0.5 * (cxx + cyy)
-    disc = np.sqrt(np.maximum(0.25 * (cxx - cyy) ** 2 + cxy ** 2, 0.0))
-    lo, hi = half_tr - disc, half_tr + disc
-    theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # the direction of most spread (the line)
-    ok = (count >= 3) & (hi > 0) & (lo <= max_flatness ** 2 * hi)
-    out[ok] = np.stack([-np.sin(theta[ok]), np.cos(theta[ok])], axis=1)  # across it
-    return out
-
-
-def match_information(points: NDArray[np.float64], normals: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The Hessian ``Σ Jᵢᵀ Jᵢ`` of a point-to-line match of ``points`` (N, 2) on lines of ``normals`` (N, 2;
-    NaN: on no line, left out), in the points' own frame.
+def sweep_information(points: NDArray[np.float64], radius: float, spacing: float, step: int = 2,
+                      max_flatness: float = 0.2) -> NDArray[np.float64]:
+    """The Hessian ``Σ wᵢ Jᵢᵀ Jᵢ`` of a point-to-line match of a scan's returns, given in sweep order
+    (N, 2), in their own frame.
 
     A point on a line moves the residual ``n · (δt + δθ · p⊥)`` for a small motion ``(δt, δθ)`` of
     the scan, so ``J = (nx, ny, n · p⊥)`` with ``p⊥ = (-py, px)``. The Hessian is what ICP's solution
     is sure of: its inverse times the residual variance is the pose covariance, and a corridor, whose
     lines all run one way, gives a Hessian with a (near-)zero eigenvalue along it. The base frame does
     not depend on the pose, so this is computed once per scan, beside the down-sampling.
-    """
-    pts = np.asarray(points, np.float64).reshape(-1, 2)
-    nrm = np.asarray(normals, np.float64).reshape(-1, 2)
-    ok = np.isfinite(nrm[:, 0])
-    if not np.any(ok):
-        return np.zeros((3, 3))
-    n, p = nrm[ok], pts[ok]
-    j = np.column_stack([n[:, 0], n[:, 1], -n[:, 0] * p[:, 1] + n[:, 1] * p[:, 0]])
-    return j.T @ j
-
-
-def sweep_information(points: NDArray[np.float64], radius: float, spacing: float, step: int = 2,
-                      max_flatness: float = 0.2) -> NDArray[np.float64]:
-    """:func:`match_information` of a scan's returns in sweep order (N, 2), with no neighbour search.
 
     Each return's line is the chord between the returns ``step`` beams before and after it, when both
     lie within ``radius`` of it and it lies within ``max_flatness`` of the chord's half-length from it

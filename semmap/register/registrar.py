@@ -312,7 +312,7 @@ class Registrar:
         """ICP's pose covariance in the map frame, and whether the match is degenerate.
 
         ``H`` is the match's point-to-line Hessian in the base frame
-        (:func:`~semmap.register.kiss.match_information`). Degenerate: the weaker direction of
+        (:func:`~semmap.register.kiss.sweep_information`). Degenerate: the weaker direction of
         translation carries under ``degenerate_ratio`` of the stronger's information (a corridor,
         one wall). With ``icp_point_std`` 0 (the default) the covariance is the fixed ``icp_xy_std`` /
         ``icp_yaw_std``, plus 1 m² along the direction a degenerate match cannot see, so odometry

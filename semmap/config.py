@@ -572,6 +572,11 @@ class EkfConfig(_Model):
                                                                     "this share of their prior std per sqrt(m "
                                                                     "driven + rad turned)")
     odom_min_noise: float = Field(1e-4, ge=0, le=10, description="floor on per-step noise std (m and rad)")
+    learn_after: float = Field(1.0, ge=0, le=1000, description="m driven before the systematic odometry errors "
+                                                               "are learnt from ICP (until then they are only "
+                                                               "considered): the first local map is a scan or two "
+                                                               "and its ICP errors are correlated, which a short "
+                                                               "baseline turns into a scale error")
     icp_xy_std: float = Field(0.005, gt=0, le=100, description="ICP position measurement std, m (with "
                                                                 "icp_point_std: its floor)")
     icp_yaw_std: float = Field(0.001, gt=0, le=10, description="ICP heading measurement std, rad (with "

@@ -35,8 +35,10 @@ LOGS = {"intel": "intel-corrected.log.gz", "freiburg101": "freiburg-101-correcte
 PUBLISHED = {"intel": {"scan matching": 0.220, "RBPF (GMapping)": 0.070, "graph mapping": 0.031}}
 
 
-def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]:
+def run(data: Path, work: Path, logs: list[str], modes: list[str], extra: dict | None = None) -> list[dict]:
     from semmap.cli.main import main
+    from semmap.config import merge_overrides
+    from semmap.io.yamlio import write_yaml
 
     rows = []
     for name in logs:
@@ -50,7 +52,7 @@ def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]
         rows.append({"log": name, "mode": "odometry alone (imported, no build)", "seconds": None, **e.as_dict()})
         for mode in modes:
             cfg = work / name / f"{mode}.yaml"
-            cfg.write_text(_config(mode))
+            write_yaml(cfg, merge_overrides(_config(mode), extra or {}))
             out = work / name / f"map_{mode}"
             t0 = time.perf_counter()
             assert main(["build", str(tour), "--out", str(out), "--config", str(cfg), "--force", "-q"]) == 0
@@ -65,16 +67,16 @@ def run(data: Path, work: Path, logs: list[str], modes: list[str]) -> list[dict]
     return rows
 
 
-def _config(mode: str) -> str:
+def _config(mode: str) -> dict:
     """The build config of a mode: ``odometry``, ``icp`` or ``fused``; ``+fit``: ``ekf.fit_margin 0`` (ICP
     beyond the gate taken where the scan fits the map better); ``+loops``: loop closure on."""
     base, *extras = mode.split("+")
-    reg = [f"mode: {base}"]
+    reg: dict = {"mode": base}
     if "fit" in extras:
-        reg.append("ekf: {fit_margin: 0.0}")
+        reg["ekf"] = {"fit_margin": 0.0}
     if "loops" in extras:
-        reg.append("loop_closure: {enabled: true}")
-    return "registration: {" + ", ".join(reg) + "}\n"
+        reg["loop_closure"] = {"enabled": True}
+    return {"registration": reg}
 
 
 def table(rows: list[dict]) -> str:
@@ -130,12 +132,14 @@ def main() -> int:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--picture", type=Path, help="draw the maps of --picture-modes side by side into this PNG")
     ap.add_argument("--picture-modes", nargs="+", default=["fused", "fused+loops"])
+    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
+                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
     args = ap.parse_args()
     if not args.data.is_dir():
         print(f"{args.data}: no CARMEN logs here", file=sys.stderr)
         return 1
     print(f"*{date.today().isoformat()}, {machine()}*\n")
-    rows = run(args.data, args.work, args.logs, args.modes)
+    rows = run(args.data, args.work, args.logs, args.modes, args.set)
     print()
     print(table(rows))
     if args.json:

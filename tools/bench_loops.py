@@ -96,8 +96,10 @@ def simulate_tour(cache: Path, cfg: dict[str, Any], seed: int, fresh: bool) -> t
 # Building and scoring
 
 
-def run_one(name: str, mode: str, lc: bool, tour: Path, maps: Path, truth: Any) -> dict[str, Any]:
+def run_one(name: str, mode: str, lc: bool, tour: Path, maps: Path, truth: Any,
+            extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Build one map (child process), score it, read its loop-closure summary."""
+    from semmap.config import merge_overrides
     from semmap.sim.score import score_map
 
     row: dict[str, Any] = {"run": name, "mode": mode, "loop_closure": lc}
@@ -105,6 +107,7 @@ def run_one(name: str, mode: str, lc: bool, tour: Path, maps: Path, truth: Any) 
     overrides: dict[str, Any] = {"registration": {"mode": mode}}
     if lc:
         overrides["registration"].update(LOOPS_ON["registration"])
+    overrides = merge_overrides(overrides, extra or {})
     try:
         t = time.perf_counter()
         res = run_build(tour, out, overrides)
@@ -321,6 +324,8 @@ def main() -> int:
                          "figure (median; a shared machine's speed varies)")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     ap.add_argument("--picture", type=Path, help="write the before/after figure (PNG) here")
+    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
+                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
     args = ap.parse_args()
 
     t_start = time.perf_counter()
@@ -328,6 +333,7 @@ def main() -> int:
     tour, sim_s = simulate_tour(args.tours, cfg, args.seed, args.fresh)
     print(f"tour {tour}: " + ("cached" if sim_s is None else f"simulated in {sim_s:.0f} s"), file=sys.stderr)
 
+    from semmap.config import merge_overrides
     from semmap.sim.score import load_truth
 
     truth = load_truth(tour)
@@ -341,7 +347,7 @@ def main() -> int:
         for name, mode, lc in RUNS:
             if name not in args.runs:
                 continue
-            row = run_one(name, mode, lc, tour, maps, truth)
+            row = run_one(name, mode, lc, tour, maps, truth, args.set)
             rows.append(row)
             if "f1" in row:
                 print(f"  {name:<12} F1 {row['f1']:.3f}  P {row['precision']:.3f}  ATE {row['ate_rmse_m']:.3f} m  "
@@ -354,6 +360,7 @@ def main() -> int:
             for _ in range(args.timing_pairs):
                 for lc, acc in ((False, without), (True, with_)):
                     ov = {"registration": {"mode": "fused", **({"loop_closure": {"enabled": True}} if lc else {})}}
+                    ov = merge_overrides(ov, args.set)
                     try:
                         acc.append(float(run_build(tour, maps / "timing", ov)["elapsed_s"]))
                     except Exception as exc:

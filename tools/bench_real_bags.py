@@ -35,7 +35,8 @@ MODES = {
 }
 
 
-def run(data: Path, work: Path, bags: list[str], modes: list[str]) -> list[dict]:
+def run(data: Path, work: Path, bags: list[str], modes: list[str], extra: dict | None = None) -> list[dict]:
+    from semmap.config import merge_overrides
     from semmap.pipeline import build
 
     rows = []
@@ -43,7 +44,7 @@ def run(data: Path, work: Path, bags: list[str], modes: list[str]) -> list[dict]
         for mode in modes:
             out = work / bag / mode.replace("+", "_")
             t0 = time.perf_counter()
-            r = build(data / f"{bag}.bag", out, overrides=MODES[mode], force=True)
+            r = build(data / f"{bag}.bag", out, overrides=merge_overrides(MODES[mode], extra or {}), force=True)
             s = json.loads(r.summary.to_json())
             reg = s["registration"]
             loops = reg.get("loop_closure")
@@ -104,11 +105,13 @@ def main() -> int:
     ap.add_argument("--modes", nargs="+", default=["odometry", "icp", "fused"], choices=list(MODES))
     ap.add_argument("--picture", type=Path, help="write the maps side by side to this PNG")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
+                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
     args = ap.parse_args()
     if not args.data.is_dir():
         print(f"no data at {args.data}", file=sys.stderr)
         return 2
-    rows = run(args.data, args.work, args.bags, args.modes)
+    rows = run(args.data, args.work, args.bags, args.modes, args.set)
     print(f"\nConsistency (share of returns within a cell of an occupied cell · mean wall thickness), "
           f"{date.today()}, {machine()}:\n")
     print(table(rows, args.modes))

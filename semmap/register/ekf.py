@@ -17,7 +17,10 @@ effective wheel base) and of the distance driven (``k_drive``: the wheel radius)
 * **Update** with a pose measurement ``z`` (the ICP result, a (3, 1) array) with
   ``H = [I 0]`` and the yaw residual wrapped to (-π, π]. ICP poses are what make the odometry
   errors observable: after a few metres the filter predicts with the robot's own odometry
-  corrected, so the gate below tests ICP against the odometry the robot really has.
+  corrected, so the gate below tests ICP against the odometry the robot really has. For the
+  first ``learn_after`` metres the errors are only considered, not learnt (a Schmidt update):
+  the first local map is a scan or two, its ICP errors are correlated from scan to scan, and
+  over a short baseline a few centimetres of them read as a scale error of 20 %.
 * **Gate**: :meth:`Se2Ekf.mahalanobis2` gives ``yᵀ S⁻¹ y`` of a candidate
   measurement before it is applied, so the caller can reject outliers.
 
@@ -105,6 +108,7 @@ class Se2Ekf:
         #: prior std of (heading drift, turn scale, drive scale)
         self._prior = np.array([cfg.odom_heading_drift_std, cfg.odom_turn_scale_std, cfg.odom_drive_scale_std])
         self._started = False  # the odometry errors are set (to 0, with their prior) by the first reset
+        self._driven = 0.0  # m driven since the filter was made (resets do not restart it)
         self.reset(pose, cov)
 
     # -- state ---------------------------------------------------------------------
@@ -172,6 +176,7 @@ class Se2Ekf:
         Q[3:, 3:] = np.diag((self.cfg.odom_error_drift * self._prior) ** 2 * (d + abs(float(u[2]))))
         self._f.Q = Q
         self._f.predict(u=u)
+        self._driven += d
 
     def corrected(self, delta: ArrayLike) -> NDArray[np.float64]:
         """The odometry increment ``delta`` with the systematic errors estimated so far taken out."""
@@ -194,7 +199,23 @@ class Se2Ekf:
         one); ungated, gate with :meth:`mahalanobis2`."""
         zz = np.asarray(z, dtype=np.float64).reshape(3, 1)
         rr = None if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
-        self._f.update(zz, HJacobian=lambda _x: _H, Hx=lambda x: x[:3], R=rr, residual=_residual)
+        if self._driven < self.cfg.learn_after:
+            self._consider_errors(zz, self._f.R if rr is None else rr)
+        else:
+            self._f.update(zz, HJacobian=lambda _x: _H, Hx=lambda x: x[:3], R=rr, residual=_residual)
         self._f.x[2, 0] = wrap_angle(self._f.x[2, 0])
         # keep P symmetric against round-off
         self._f.P = 0.5 * (self._f.P + self._f.P.T)
+
+    def _consider_errors(self, z: NDArray[np.float64], R: NDArray[np.float64]) -> None:
+        """A Schmidt ("consider") update: the pose is corrected with the odometry errors' uncertainty
+        accounted for, but the errors themselves are not learnt (their gain rows are 0; Joseph form,
+        valid for any gain). Used for the first ``learn_after`` metres."""
+        P = np.asarray(self._f.P, dtype=np.float64)
+        y = _residual(z, self._f.x[:3])
+        S = P[:3, :3] + R
+        K = np.linalg.solve(S, P[:3, :]).T  # P Hᵀ S⁻¹ (S symmetric)
+        K[3:] = 0.0
+        self._f.x = self._f.x + K @ y
+        A = np.eye(_DIM) - K @ _H
+        self._f.P = A @ P @ A.T + K @ R @ K.T

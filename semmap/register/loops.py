@@ -876,6 +876,7 @@ class LoopCloser:
         reg = reg_cfg if reg_cfg is not None else RegistrationConfig()
         self._icp_cfg = reg.model_copy(update={"initial_threshold": cfg.icp_threshold})
         self._prep: Any = None  # a KissMatcher used for down-sampling only (created lazily)
+        self._verifier: Any = None  # the KissMatcher of the verifications, its map cleared for each (lazily)
         # every scan: its index, keyframe and pose in the keyframe's frame
         self._scan_index = _Buffer(1, np.int64)
         self._scan_kf = _Buffer(1, np.int32)
@@ -1123,8 +1124,9 @@ class LoopCloser:
         radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[: last + 1, 0])
         near_idx = np.flatnonzero(dist <= radius)
         near_idx = near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]
-        for j in near_idx[: 10 * cfg.max_candidates * max(cfg.submap_keyframes, 1)]:  # enough for the places
-            by_position.append((int(j), se2_between(old[j], pk), "position"))
+        near_idx = near_idx[: 10 * cfg.max_candidates * max(cfg.submap_keyframes, 1)]  # enough for the places
+        for j, guess in zip(near_idx.tolist(), se2_between(old[near_idx], pk)):
+            by_position.append((j, guess, "position"))
         by_descriptor: list[tuple[int, F64, str]] = []
         if cfg.descriptor:
             keys = self._kf_key.view[: last + 1]
@@ -1251,7 +1253,10 @@ class LoopCloser:
         hi = max(j, min(j + n, k - n - 1))
         poses = self._kf_pose.view
         rel = se2_between(poses[j], poses[lo: hi + 1])
-        matcher = KissMatcher(self._icp_cfg)
+        if self._verifier is None:  # one matcher, emptied for each place: KISS-ICP's config costs 2 ms to make
+            self._verifier = KissMatcher(self._icp_cfg)
+        matcher = self._verifier
+        matcher.clear_map()
         parts: list[F64] = []  # (M, 3): x, y, normal direction in j's frame
         fine: list[F64] = []
         for i, r in zip(range(lo, hi + 1), rel):

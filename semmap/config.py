@@ -45,6 +45,7 @@ __all__ = [
     "OnnxSegmentation",
     "PaintConfig",
     "PluginSegmentation",
+    "RefineConfig",
     "RegistrationConfig",
     "Sam3Segmentation",
     "SegmentationConfig",
@@ -634,6 +635,22 @@ class LoopClosureConfig(_Model):
                                                                       "fusion stands)")
 
 
+class RefineConfig(_Model):
+    """Point-to-line refinement of each ICP result against the local map (semmap/register/refine.py)."""
+
+    enabled: bool = Field(False, description="refine KISS-ICP's point-to-point result by matching each point to "
+                                             "the line through its map neighbours (off by default: better steps "
+                                             "on the real logs, but registration 2-3x slower and icp mode worse "
+                                             "on the ward tour; docs/registration.md)")
+    kernel: float = Field(0.05, gt=0, le=10, description="Geman-McClure scale of the point-to-line residuals, m")
+    max_distance: float = Field(0.15, gt=0, le=100, description="a point farther than this from the map is not "
+                                                               "matched, m")
+    neighbours: int = Field(6, ge=3, le=50, description="map points that define a point's line")
+    rebuild_distance: float = Field(0.25, ge=0, le=100, description="the map's search tree is rebuilt after the "
+                                                                    "robot moved this far (m driven + rad turned) "
+                                                                    "since the last build (0: every scan)")
+
+
 class RegistrationConfig(_Model):
     """Scan registration: KISS-ICP scan-to-map odometry, optionally fused with wheel odometry."""
 
@@ -659,6 +676,7 @@ class RegistrationConfig(_Model):
     min_points: int = Field(20, ge=3, description="fewer down-sampled points than this: ICP is not run "
                                                   "and the step counts as failed")
     exclude_dynamic: bool = Field(True, description="points painted dynamic are not matched or mapped")
+    refine: RefineConfig = RefineConfig()
     ekf: EkfConfig = EkfConfig()
     loop_closure: LoopClosureConfig = LoopClosureConfig()
 

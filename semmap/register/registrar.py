@@ -58,6 +58,7 @@ from ..geometry import se2_apply, se2_between, se2_compose, se2_inverse, wrap_an
 from ..records import Mobility, PaintedScan
 from .ekf import Se2Ekf, odometry_noise
 from .kiss import KissMatcher
+from .refine import LineRefiner
 
 __all__ = ["Registrar"]
 
@@ -116,6 +117,10 @@ class Registrar:
                 min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
                 descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance), cfg)
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
+        rf = cfg.refine
+        self._refiner: LineRefiner | None = LineRefiner(neighbours=rf.neighbours) \
+            if rf.enabled and self._matcher is not None else None
+        self._refined_since = np.inf  # m driven + rad turned since the refiner's map was taken
         self._pose: NDArray[np.float64] | None = None  # last returned pose (map frame)
         self._velocity = _ZERO.copy()  # last increment, for the constant-velocity guess
         self._last_odom: NDArray[np.float64] | None = None  # odometry pose at the previous scan
@@ -129,6 +134,7 @@ class Registrar:
             "icp_failed": 0,  # ICP not run or unusable: too few points, empty map, non-finite result
             "filter_resets": 0,  # fused: the EKF restarted from ICP after ekf.reset_after rejections in a row
             "icp_degenerate": 0,  # ICP results whose match leaves a direction unconstrained (a corridor)
+            "icp_refined": 0,  # ICP results refined point-to-line (refine.enabled)
             "odom_missing": 0,  # scans without odometry (fused: ran as icp; odometry: extrapolated)
             "points_used": 0,  # hit points passed to the down-sampler
             "points_dynamic_excluded": 0,  # hit points dropped because painted dynamic
@@ -441,4 +447,23 @@ class Registrar:
             self._counts["icp_failed"] += 1
             log.debug("ICP returned a non-finite pose")
             return None
-        return result
+        return self._refine(prepared, result)
+
+    def _refine(self, prepared: Any, result: NDArray[np.float64]) -> NDArray[np.float64]:
+        """KISS-ICP's result refined point-to-line against the local map (``refine``); the result as it
+        is when there are too few lines to match."""
+        if self._refiner is None:
+            return result
+        rf = self.cfg.refine
+        if self._pose is not None and self._refined_since < np.inf:
+            step = se2_between(self._pose, result)
+            self._refined_since += float(np.hypot(step[0], step[1]) + abs(step[2]))
+        if self._refined_since >= rf.rebuild_distance or not self._refiner.has_map:
+            assert self._matcher is not None
+            self._refiner.set_map(self._matcher.map_points())
+            self._refined_since = 0.0
+        out = self._refiner.refine(prepared.map_points[:, :2], result, rf.kernel, rf.max_distance)
+        if out is None:
+            return result
+        self._counts["icp_refined"] += 1
+        return out.pose

@@ -25,7 +25,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from benchlib import machine
+from benchlib import add_set_argument, machine
 
 from semmap.io.tum import read_tum
 from semmap.register.evaluate import trajectory_errors
@@ -132,8 +132,7 @@ def main() -> int:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--picture", type=Path, help="draw the maps of --picture-modes side by side into this PNG")
     ap.add_argument("--picture-modes", nargs="+", default=["fused", "fused+loops"])
-    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
-                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
+    add_set_argument(ap)
     args = ap.parse_args()
     if not args.data.is_dir():
         print(f"{args.data}: no CARMEN logs here", file=sys.stderr)

@@ -44,7 +44,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 from bench_build import run_build
-from benchlib import machine
+from benchlib import add_set_argument, machine
 
 SCENARIO = "loop"
 LOOPS_ON = {"registration": {"loop_closure": {"enabled": True}}}
@@ -324,8 +324,7 @@ def main() -> int:
                          "figure (median; a shared machine's speed varies)")
     ap.add_argument("--json", type=Path, help="also write every figure here")
     ap.add_argument("--picture", type=Path, help="write the before/after figure (PNG) here")
-    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
-                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
+    add_set_argument(ap)
     args = ap.parse_args()
 
     t_start = time.perf_counter()

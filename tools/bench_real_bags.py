@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tools"))
 
-from benchlib import machine
+from benchlib import add_set_argument, machine
 
 BAGS = ["2018_may9_editted_before1", "2018_may9_editted_after1", "2019_jan17_expt08", "2019_jan17_expt09"]
 #: mode name → config overrides
@@ -105,8 +105,7 @@ def main() -> int:
     ap.add_argument("--modes", nargs="+", default=["odometry", "icp", "fused"], choices=list(MODES))
     ap.add_argument("--picture", type=Path, help="write the maps side by side to this PNG")
     ap.add_argument("--json", type=Path)
-    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
-                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"icp_point_std": 0.1}}}\'')
+    add_set_argument(ap)
     args = ap.parse_args()
     if not args.data.is_dir():
         print(f"no data at {args.data}", file=sys.stderr)

@@ -45,7 +45,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 from bench_build import run_build
-from benchlib import machine
+from benchlib import add_set_argument, machine
 
 # The scoring worlds. These seeds are for scoring only: never look at their worlds or maps,
 # and never use them while developing or tuning (use --dev or --seeds); otherwise the scores
@@ -246,8 +246,7 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true", help="simulate again even when a cached tour exists")
     ap.add_argument("--maps", type=Path, help="keep the map folders here (default: a temporary folder)")
     ap.add_argument("--json", type=Path, help="also write every score here")
-    ap.add_argument("--set", type=json.loads, default={}, metavar="JSON",
-                    help='config overrides for every build, e.g. \'{"registration": {"ekf": {"fit_margin": 0}}}\'')
+    add_set_argument(ap)
     args = ap.parse_args()
 
     if args.seeds is not None:

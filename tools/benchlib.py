@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import platform
 from pathlib import Path
@@ -52,3 +54,16 @@ def host_reference_ms(repeats: int = 5) -> float:
             cv2.max(lo, -2.0, dst=lo)
         times.append((time.perf_counter() - t0) * 1000)
     return statistics.median(times)
+
+
+def add_set_argument(ap: argparse.ArgumentParser) -> None:
+    """``--set JSON``: config overrides for every build of a benchmark (``args.set``, a dict)."""
+
+    def overrides(text: str) -> dict:
+        value = json.loads(text)
+        if not isinstance(value, dict):
+            raise argparse.ArgumentTypeError("--set takes a JSON object, e.g. '{\"registration\": {...}}'")
+        return value
+
+    ap.add_argument("--set", type=overrides, default={}, metavar="JSON",
+                    help='config overrides for every build, e.g. \'{"registration": {"refine": {"enabled": true}}}\'')

@@ -339,7 +339,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     ``structure_min_size`` may be near: people stand by walls, beds and counters.
     """
     n, lab, stats, cent = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
-    if n <= 2:
+    if n <= 1:  # (one blob may be a person: two legs close together)
         return np.zeros(occ.shape, bool)
     w = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) * res
     lo, hi = cfg.person_leg_width
@@ -380,14 +380,17 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             continue
         pts = np.asarray(np.column_stack(np.nonzero(lab == b))[:, ::-1] * res, np.float64)
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
+        # cell centres lie on whole cells: a width measured from them in float32 is a whole number of
+        # cells to within rounding, and a blob exactly ``lo`` across must not fall on either side by chance
+        thick = min(bw, bh) + 0.01 * res
         if w[b] <= hi:
             # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
-            person[b] = min(bw, bh) >= lo and _two_lobes(pts, res, lo)
+            person[b] = thick >= lo and _two_lobes(pts, res, lo)
             continue
         if _one_ring(pts, res):  # a pot, a bin, a round post: one circle, where two legs are two
             continue
         # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round
-        if lo + res <= min(bw, bh) + res <= hi or _two_lobes(pts, res, lo):
+        if lo <= thick <= hi - res + 0.02 * res or _two_lobes(pts, res, lo):
             person[b] = True
     return person[lab]
 

@@ -283,8 +283,14 @@ def test_interrupted_export_leaves_no_folder(folder, tmp_path, monkeypatch):
         return real(*a, **k)
 
     monkeypatch.setattr(run_mod, "write_layer", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        semmap.export(folder, tmp_path / "x")
+    # Ctrl-C as Python maps it by default; a runner started in the background (`cmd &` in a script)
+    # inherits SIGINT ignored, and then no signal would arrive
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            semmap.export(folder, tmp_path / "x")
+    finally:
+        signal.signal(signal.SIGINT, old)
     assert not (tmp_path / "x").exists() and not list(tmp_path.iterdir())
 
 

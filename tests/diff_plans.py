@@ -23,12 +23,19 @@ RES = 0.05
 class Room:
     """A drawing of one session in world coordinates, rendered into a map frame at ``T_world_map``."""
 
-    def __init__(self, size=(10.0, 8.0)):
+    def __init__(self, size=(10.0, 8.0), floor_margin=0.03):
         self.w, self.h = size
+        #: free floor reaches this close to the room's walls
+        self.floor_margin = floor_margin
         self.walls: list[tuple[float, float, float, float]] = [(0, 0, self.w, 0), (self.w, 0, self.w, self.h),
                                                               (self.w, self.h, 0, self.h), (0, self.h, 0, 0)]
         self.objects: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []  # class, c, size, yaw
+        #: which legs (indices 0-3) each object's entry in the object list holds; all when absent (a build
+        #: may list a table's far legs as another object, or as none)
+        self.listed_legs: dict[int, tuple[int, ...]] = {}
         self.people: list[tuple[float, float]] = []
+        #: points cleaning took for people and dropped (dynamic evidence, no obstacle): a chair's legs
+        self.dropped: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
 
     def legs(self, c, size, yaw):
@@ -60,20 +67,33 @@ class Room:
         centres = np.stack([spec.origin_x + (cols.ravel() + 0.5) * RES, spec.origin_y + (rows.ravel() + 0.5) * RES],
                            axis=1)
         world = se2_apply(T_world_map, centres)
-        inside = ((world[:, 0] > 0.03) & (world[:, 0] < self.w - 0.03) & (world[:, 1] > 0.03)
-                  & (world[:, 1] < self.h - 0.03)).reshape(spec.shape)
+        m = self.floor_margin
+        inside = ((world[:, 0] > m) & (world[:, 0] < self.w - m) & (world[:, 1] > m)
+                  & (world[:, 1] < self.h - m)).reshape(spec.shape)
         for bx0, by0, bx1, by1 in self.unseen:
             inside &= ~((world[:, 0] >= bx0) & (world[:, 0] <= bx1) & (world[:, 1] >= by0)
                         & (world[:, 1] <= by1)).reshape(spec.shape)
         objs = []
-        for cls, c, size, yaw in self.objects:
+        for k, (cls, c, size, yaw) in enumerate(self.objects):
             legs = self.legs(c, size, yaw)
             for leg in legs:  # a leg: a 4 cm square
                 mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
-            cm = se2_apply(t_map_world, np.array([c]))[0]
-            fp = se2_apply(t_map_world, self.legs(c, (size[0] + 0.06, size[1] + 0.06), yaw))
-            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (max(size), min(size)),
+            listed = list(self.listed_legs.get(k, range(4)))
+            if len(listed) == 4:
+                cw = np.asarray(c, float)
+                fp = se2_apply(t_map_world, self.legs(c, (size[0] + 0.06, size[1] + 0.06), yaw))
+                dims = (max(size), min(size))
+            else:  # the entry holds some legs only: its box is theirs
+                seen = legs[listed]
+                cw = seen.mean(axis=0)
+                lo, hi = seen.min(axis=0) - 0.05, seen.max(axis=0) + 0.05
+                fp = se2_apply(t_map_world, np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]]))
+                dims = (float(max(hi - lo)), float(min(hi - lo)))
+            cm = se2_apply(t_map_world, cw[None])[0]
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
                                          float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+        for p in self.dropped:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), dyn)
         for p in self.people:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
         free = inside & ~occ

@@ -116,3 +116,91 @@ def test_tolerance_decides_what_a_small_shift_is():
     assert _diff(a, b).counts()["static_added"] == 0  # within the default 10 cm
     strict = _diff(a, b, ChangeSettings(tolerance_m=0.02)).counts()
     assert strict["static_added"] == 1 and strict["static_removed"] == 1
+
+
+def test_a_chair_the_other_session_took_for_a_person_is_not_gone():
+    # B's cleaning took the chair's legs for a person's and dropped them: B saw people there, not free
+    # floor. Its dynamic evidence sits a cell off the legs A saw (the alignment's wobble).
+    a, b = Room(), Room()
+    chair = ("chair", (6.0, 2.0), (0.5, 0.45), 0.0)
+    a.objects.append(chair)
+    b.dropped += [tuple(leg + (0.04, 0.03)) for leg in b.legs(*chair[1:])]
+    r = _diff(a, b)
+    assert r.counts()["object_disappeared"] == 0 and r.counts()["static_removed"] == 0
+    assert not (r.mask == 2).any()
+
+
+def test_a_chair_where_the_other_session_saw_a_person_a_step_away_has_appeared():
+    # the people of one session hide only the cells they stood on: a chair put 35 cm from where a
+    # person stood during A is still new in B
+    a, b = Room(), Room()
+    b.objects.append(("chair", (6.0, 2.0), (0.5, 0.45), 0.0))
+    a.people.append((6.0 + 0.22 + 0.35, 2.0))
+    r = _diff(a, b)
+    assert r.counts()["object_appeared"] == 1
+
+
+def test_a_table_slid_along_its_length_by_a_wall_is_one_short_move():
+    # a long table by the north wall moves 52 cm; B's object list holds only its two legs by the wall
+    # (the far two are flagged movable but listed with no object). Pairing A's far legs with B's near
+    # ones explains as many cells and carries A's near legs through the wall: the short move is right.
+    a, b = Room(), Room()
+    a.objects.append(("dining table", (8.8, 6.6), (2.2, 0.6), math.pi / 2))
+    b.objects.append(("dining table", (8.3, 6.45), (2.2, 0.6), math.pi / 2))
+    b.listed_legs[0] = (0, 1)  # the two legs at the north end (+x of the box, turned to +y)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == counts["object_disappeared"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.displacement_m == pytest.approx(math.hypot(0.5, 0.15), abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - _world(mv.from_xy) - (-0.5, -0.15)) < 0.05
+
+
+def test_the_far_face_of_a_wall_one_session_saw_from_one_side_is_no_change():
+    # A saw a 15 cm partition from both sides; B only from the west, and its rays grazing along the
+    # east face marked that face free. The partition did not move: no change. A new partition a
+    # metre away is still one.
+    a, b = Room(), Room()
+    for room in (a, b):
+        room.walls.append((5.0, 0.0, 5.0, 4.0))
+    a.walls.append((5.15, 0.0, 5.15, 4.0))
+    b.walls.append((7.0, 8.0, 7.0, 5.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["static_removed"] == 0 and not (r.mask == 2).any()
+    assert r.left_out["wall_faces"] == 1
+    assert counts["static_added"] == 1
+
+
+def _mask_world(r, value):
+    rows, cols = np.nonzero(r.mask == value)
+    return se2_apply(T_A, np.stack([r.spec.origin_x + (cols + 0.5) * RES, r.spec.origin_y + (rows + 0.5) * RES],
+                                   axis=1))
+
+
+def test_a_new_cabinet_a_person_stood_by_is_added_whole_and_a_person_left_in_is_not():
+    # B: a 1.2 m cabinet (its outline) with one person-labelled cell by its front; A saw people there
+    # too. The cabinet is new along all its front; a person B's cleaning left in where A saw people
+    # (a blob with no label of its own) is no change.
+    a, b = Room(), Room()
+    b.walls += [(3.0, 5.0, 4.2, 5.0), (4.2, 5.0, 4.2, 5.5), (4.2, 5.5, 3.0, 5.5), (3.0, 5.5, 3.0, 5.0)]
+    a.people.append((3.6, 4.75))
+    b.walls += [(7.0, 2.0, 7.15, 2.0), (7.15, 2.0, 7.15, 2.15)]  # the person left in B's map
+    a.people.append((7.05, 2.05))
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1
+    added = _mask_world(r, 1)
+    front = added[np.abs(added[:, 1] - 5.0) < 0.08]
+    assert front.shape[0] >= 0.9 * 1.2 / RES  # the front under the person's margin too
+    assert np.all(np.hypot(added[:, 0] - 7.07, added[:, 1] - 2.07) > 0.3)
+
+
+def test_a_couch_pushed_against_a_wall_has_its_wall_side_in_the_change_mask():
+    # its back legs touch the north wall; A saw the floor free up to the wall
+    a, b = Room(floor_margin=0.0), Room(floor_margin=0.0)
+    b.objects.append(("couch", (2.0, 7.55), (2.0, 0.9), 0.0))
+    r = _diff(a, b)
+    assert r.counts()["object_appeared"] == 1
+    added = _mask_world(r, 1)
+    back = added[added[:, 1] > 7.8]
+    assert back.shape[0] >= 4  # the back legs' cells, labelled couch, within a cell of the wall

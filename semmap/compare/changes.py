@@ -63,8 +63,11 @@ class ChangeSettings:
 
     #: an obstacle this close to one of the other session's is the same obstacle
     tolerance_m: float = 0.10
-    #: cells this close to where people were seen are never changes
+    #: cells this close to where people were seen are never changes, in pieces a person could be:
+    #: no longer than ``person_m``, or with ``person_share`` of their cells on people evidence
     people_margin_m: float = 0.30
+    person_m: float = 0.8
+    person_share: float = 0.3
     #: a static change smaller than this (m²) is noise
     min_static_m2: float = 0.01
     #: cells of one static change may be this far apart (the legs of a table are one change)
@@ -76,6 +79,8 @@ class ChangeSettings:
     max_move_m: float = 4.0
     #: an object counts as seen by the other session when this share of its footprint was observed there
     seen_share: float = 0.6
+    #: an obstacle no larger than this (m²) may be a leg of furniture the camera did not label
+    leg_m2: float = 0.03
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -266,14 +271,18 @@ def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
 
 
 def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float,
-                contradicts: Any = None) -> NDArray[np.float64]:
+                contradicts: Any = None, furniture_a: Any = None, furniture_b: Any = None) -> NDArray[np.float64]:
     """The rigid motion (x, y, yaw) taking an object's cells ``src`` (session A) onto its cells ``dst``
     (session B). The sessions may have seen different legs of it (two of a bed's four in one, three
     in the other), so the centroids need not correspond: every pairing of a leg of A with a leg of B,
     at each candidate turn in ``turns`` (radians), is a hypothesis, as is the centroid shift. A
     hypothesis is scored by the shares of either session's cells it explains, less the share of A's
-    cells it puts where B saw free floor (``contradicts(xy) -> bool mask``); the best few are refined by
-    ICP and scored again, and the best refined one wins (of equal ones, the smallest motion)."""
+    cells it puts where B contradicts them (``contradicts(xy) -> bool mask``: floor B saw free, or
+    beyond what B saw at all, behind its walls); the best few are refined by ICP and scored again, and
+    the best refined one wins (of equal ones, the smallest motion). A cell is explained when it lands
+    on the other session's cells of the object, or on any furniture of the other session
+    (``furniture_a`` / ``furniture_b(xy) -> bool mask``): a build may list a table's far legs as
+    another object, or none, and the motion that puts them there is the right one."""
     link = 1.6 * res
     legs_a, legs_b = _legs(src, link), _legs(dst, link)
     tree_a, tree_b = cKDTree(src), cKDTree(dst)
@@ -282,9 +291,15 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
 
     def score(pose: NDArray[np.float64]) -> float:
         moved = se2_apply(pose, src)
-        explained_b = np.count_nonzero(tree_a.query(se2_apply(se2_inverse(pose), dst))[0] <= tol)
-        explained_a = np.count_nonzero(tree_b.query(moved)[0] <= tol)
-        bad = np.count_nonzero(contradicts(moved)) if contradicts is not None else 0
+        back = se2_apply(se2_inverse(pose), dst)
+        hit_b = tree_a.query(back)[0] <= tol
+        hit_a = tree_b.query(moved)[0] <= tol
+        if furniture_a is not None:
+            hit_b |= furniture_a(back)
+        if furniture_b is not None:
+            hit_a |= furniture_b(moved)
+        explained_b, explained_a = np.count_nonzero(hit_b), np.count_nonzero(hit_a)
+        bad = np.count_nonzero(contradicts(moved) & ~hit_a) if contradicts is not None else 0
         shift = float(np.linalg.norm(se2_apply(pose, cs[None])[0] - cs))
         return (explained_b / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
 
@@ -450,6 +465,65 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
     return out, kept, lab, [int(k) for k in keep_ids]
 
 
+def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people: NDArray[np.bool_],
+                 st: ChangeSettings, res: float) -> NDArray[np.bool_]:
+    """``changed`` less the cells in ``zone`` (near where people were seen) of the pieces that may be
+    people: pieces (cells up to ``group_m`` apart) that fit in ``person_m``, or that lie on people
+    evidence (``on_people``) for at least ``person_share`` of their cells (a walker's trail). A piece
+    larger than a person and mostly away from people is an obstacle, kept whole."""
+    hit = changed & zone
+    if not hit.any():
+        return changed
+    lab, _ = ndimage.label(_dilate(changed, st.group_m / res / 2.0), structure=np.ones((3, 3), bool))
+    lab = np.where(changed, lab, 0)
+    out = changed.copy()
+    slices = ndimage.find_objects(lab)
+    for k in np.unique(lab[hit]):
+        sl = slices[k - 1]
+        if sl is None:
+            continue
+        piece = lab[sl] == k
+        rows, cols = np.nonzero(piece)
+        extent = math.hypot(float(rows.max() - rows.min()), float(cols.max() - cols.min())) * res
+        if extent > st.person_m and float(on_people[sl][piece].mean()) < st.person_share:
+            continue  # an obstacle people stood by
+        out[sl][piece & zone[sl]] = False
+    return out
+
+
+def _small_blobs(occ: NDArray[np.bool_], max_cells: int) -> NDArray[np.bool_]:
+    """Obstacles of at most ``max_cells`` cells (8-connected): legs of furniture, posts, not walls."""
+    lab, n = ndimage.label(occ, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros_like(occ)
+    small = np.bincount(lab.ravel(), minlength=n + 1) <= max_cells
+    small[0] = False
+    return np.asarray(small[lab], bool)
+
+
+def _wall_faces(labels: NDArray[np.int32], ids: list[int], other_occ: NDArray[np.bool_], band_cells: float
+                ) -> set[int]:
+    """The pieces (label ids) that are the far face of a wall the other session saw from one side only:
+    a strip at most two cells thick lying, for at least 80 % of its cells, within ``band_cells`` (twice
+    the tolerance) of the other session's obstacles. Rays grazing along a wall's face mark it free; the
+    wall is there. A door closed in a doorway is not such a strip: most of it is far from the jambs."""
+    if not ids:
+        return set()
+    band = _dilate(other_occ, band_cells)
+    out = set()
+    slices = ndimage.find_objects(labels)
+    for k in ids:
+        sl = slices[k - 1]
+        if sl is None:
+            continue
+        piece = labels[sl] == k
+        if ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any():
+            continue  # three cells thick somewhere: a real obstacle
+        if float(band[sl][piece].mean()) >= 0.8:
+            out.add(k)
+    return out
+
+
 def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.float64],
                      st: ChangeSettings | None = None) -> tuple[list[Change], NDArray[np.uint8], dict[str, int]]:
     """The changes from A to B on the common grid ``lo``: the list, the change mask on the common
@@ -467,12 +541,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     near_a = np.where(semi_b, _dilate(lo.occ_a, fine), _dilate(lo.occ_a, tol))
     near_b = np.where(semi_a, _dilate(lo.occ_b, fine), _dilate(lo.occ_b, tol))
     # where either session saw people, an obstacle may be a person the other's cleaning left in (a
-    # person standing out of the camera's view has no label of its own): no change
-    added = lo.occ_b & lo.free_a & ~near_a & ~(people & ~semi_b)
-    removed = lo.occ_a & lo.free_b & ~near_b & ~(people & ~semi_a)
+    # person standing out of the camera's view has no label of its own): no change. Only for pieces
+    # a person could be: a cabinet face a metre long with one person-labelled cell beside it is new
+    on_people = _dilate(lo.dyn_a | lo.dyn_b, tol)
+    added = _void_people(lo.occ_b & lo.free_a & ~near_a, people & ~semi_b, on_people, st, res)
+    removed = _void_people(lo.occ_a & lo.free_b & ~near_b, people & ~semi_a, on_people, st, res)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
-    left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0}
+    left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0,
+                "wall_faces": 0}
     left_out["cells_near_people"] = int(((lo.occ_b & lo.free_a) | (lo.occ_a & lo.free_b))[people].sum())
 
     # movable objects: an object whose cells the other session saw free is gone (or new); gone and
@@ -486,28 +563,54 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a)
         objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b)
         obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
-        # an object's own cells are furniture by its session's labels: only cells people were seen on
-        # (not the margin around them) are no evidence
-        seen_people = lo.dyn_a | lo.dyn_b
-        gone = _changed_objects(objs_a, removed, obs_b, seen_people, st, left_out, "objects_unobserved_in_b")
-        new = _changed_objects(objs_b, added, obs_a, seen_people, st, left_out, "objects_unobserved_in_a")
+        # an object's own cells are furniture by its session's labels: cells its own session saw people
+        # on are no evidence, nor cells within a cell and a half (the alignment's wobble) of people the
+        # other session saw there: its cleaning took this very chair's legs for a person's and dropped
+        # them. Only the legs' own cells: a person who stood a step away from where a chair is now does
+        # not hide the chair
+        people_for_a = lo.dyn_a | _dilate(lo.dyn_b, 1.5)
+        people_for_b = lo.dyn_b | _dilate(lo.dyn_a, 1.5)
+        gone = _changed_objects(objs_a, removed, obs_b, people_for_a, st, left_out, "objects_unobserved_in_b")
+        new = _changed_objects(objs_b, added, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
         gone = _merge_fragments(gone, sizes.size_of, spec)
         new = _merge_fragments(new, sizes.size_of, spec)
         pairs, only_a, only_b = _match_objects(gone, new, st)
-        # floor B saw free with no obstacle of B within a cell and a half: an object of A carried there
-        # by a candidate motion is contradicted
+        # an object of A carried by a candidate motion is contradicted on floor B saw free with no
+        # obstacle of B within a cell and a half, and beyond half a metre of anything B saw (behind
+        # its walls, out of the building); it is explained on furniture either session saw: cells
+        # flagged movable, and obstacles small enough to be a leg (the camera may not have labelled it)
         b_floor = lo.free_b & ~_dilate(lo.occ_b, 1.5)
+        b_contra = b_floor | ~_dilate(obs_b, 0.5 / res)
+        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
+        furn_a = _dilate(semi_a | _small_blobs(lo.occ_a, leg_cells), 1.5) if pairs else semi_a
+        furn_b = _dilate(semi_b | _small_blobs(lo.occ_b, leg_cells), 1.5) if pairs else semi_b
 
-        def contradicts(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+        def lookup(img: NDArray[np.bool_], xy: NDArray[np.float64], outside: bool) -> NDArray[np.bool_]:
             c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
             r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
             ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
-            out = np.zeros(xy.shape[0], bool)
-            out[ok] = b_floor[r[ok], c[ok]]
+            out = np.full(xy.shape[0], outside)
+            out[ok] = img[r[ok], c[ok]]
             return out
+
+        def contradicts(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+            return lookup(b_contra, xy, True)
+
+        def furniture_a(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+            return lookup(furn_a, xy, False)
+
+        def furniture_b(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+            return lookup(furn_b, xy, False)
+
+        def own_cells(o: _Obj, other_free: NDArray[np.bool_]) -> NDArray[np.bool_]:
+            """The object's own cells the other session saw free: changed, however near a wall (a
+            couch pushed against one is within the tolerance of it, but labelled couch)."""
+            m = np.zeros(spec.shape, bool)
+            m[o.cells[:, 0], o.cells[:, 1]] = True
+            return m & other_free
 
         for ia, ib in pairs:
             oa, ob = gone[ia], new[ib]
@@ -517,7 +620,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             # turns (a box looks alike turned half way round, a square one a quarter)
             box = _box_turn(oa.yaw, ob.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts)
+            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, furniture_a, furniture_b)
             from_c = _reference_point(src_xy, dst_xy, motion)
             new_c = se2_apply(motion, from_c[None])[0]
             # a box looks the same turned half way round: the turn is the short one, within ±90°
@@ -530,8 +633,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
                                   oa.src.class_name, (float(from_c[0]), float(from_c[1])),
                                   (float(new_c[0]), float(new_c[1])), disp, turn))
-            mask[added & zone] = 1
-            mask[removed & zone] = 2
+            mask[(added | own_cells(ob, lo.free_a)) & zone] = 1
+            mask[(removed | own_cells(oa, lo.free_b)) & zone] = 2
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
             for i in idx:
                 o = objs[i]
@@ -540,9 +643,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
                                       o.src.class_name))
                 if kind == "object_appeared":
-                    mask[added & zone] = 1
+                    mask[(added | own_cells(o, lo.free_a)) & zone] = 1
                 else:
-                    mask[removed & zone] = 2
+                    mask[(removed | own_cells(o, lo.free_b)) & zone] = 2
         # cells flagged movable, in an object or not, are never static changes
         on_objects = _dilate(on_objects | (lo.semi_a & lo.occ_a) | (lo.semi_b & lo.occ_b), near)
 
@@ -550,11 +653,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, value in (("static_added", added & ~on_objects, 1), ("static_removed", removed & ~on_objects, 2)):
+    for kind, cells, value, other_occ in (("static_added", added & ~on_objects, 1, lo.occ_a),
+                                          ("static_removed", removed & ~on_objects, 2, lo.occ_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
-        changes += [c for k, c in enumerate(found) if ids[k] not in touching]
-        mask[kept] = value
+        faces = _wall_faces(labels, ids, other_occ, 2.0 * tol)
+        left_out["wall_faces"] += len(faces)
+        changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
+        mask[kept & ~np.isin(labels, list(faces))] = value
 
     # floor only one session observed
     min_explored = max(1, int(math.ceil(st.min_explored_m2 / (res * res))))

@@ -204,3 +204,16 @@ def test_a_couch_pushed_against_a_wall_has_its_wall_side_in_the_change_mask():
     added = _mask_world(r, 1)
     back = added[added[:, 1] > 7.8]
     assert back.shape[0] >= 4  # the back legs' cells, labelled couch, within a cell of the wall
+
+
+def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
+    # A's build listed the chair's front legs and back legs as two chairs; the whole is a chair
+    a, b = Room(), Room()
+    chair = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0)
+    a.objects += [chair, chair]
+    a.listed_legs.update({0: (0, 1), 1: (2, 3)})
+    b.objects.append(("chair", (6.3, 4.5), (0.45, 0.45), math.radians(60)))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_disappeared"] == counts["object_appeared"] == 0
+    assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)

@@ -414,7 +414,8 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], other_observe
 
 def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Obj]:
     """Join pieces of one object: a build may list a bed as two objects where the other found one.
-    Pieces of one class merge while the whole still fits in that class's typical size."""
+    Pieces of one class merge while the smallest box around the whole is no longer than that class's
+    typical length."""
     objs = list(objs)
     merged = True
     while merged:
@@ -426,8 +427,10 @@ def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Ob
                     continue
                 cells = np.concatenate([a.cells, b.cells])
                 xy = _cells_xy(cells, spec)
-                hull = cv2.convexHull(xy.astype(np.float32)).reshape(-1, 2)
-                extent = float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=2)))
+                # the long side of the smallest box around both (a square chair's diagonal is longer
+                # than its typical length, its side is not)
+                _, (w, h), _ = cv2.minAreaRect(xy.astype(np.float32))
+                extent = float(max(w, h))
                 if extent <= 1.1 * size_of(a.src.class_name) + spec.resolution:
                     lo_xy, hi_xy = xy.min(axis=0), xy.max(axis=0)
                     objs[i] = _Obj(a.src, 0.5 * (lo_xy + hi_xy), a.yaw, np.zeros((0, 2)), cells)

@@ -36,6 +36,9 @@ class Room:
         self.people: list[tuple[float, float]] = []
         #: points cleaning took for people and dropped (dynamic evidence, no obstacle): a chair's legs
         self.dropped: list[tuple[float, float]] = []
+        #: legs flagged movable that no object of the list holds (the nearest object within a metre
+        #: takes them)
+        self.loose_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
 
     def legs(self, c, size, yaw):
@@ -92,6 +95,8 @@ class Room:
             cm = se2_apply(t_map_world, cw[None])[0]
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
                                          float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+        for p in self.loose_legs:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
         for p in self.dropped:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), dyn)
         for p in self.people:

@@ -217,3 +217,18 @@ def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
     counts = r.counts()
     assert counts["object_moved"] == 1 and counts["object_disappeared"] == counts["object_appeared"] == 0
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
+
+
+def test_a_bed_still_there_is_not_gone_when_people_walked_by_its_legs_and_a_neighbour_moved():
+    # A's object list holds the bed and two legs of another bed beside it; those two legs went, the
+    # bed stayed. B saw people brush past each of the bed's legs (dynamic evidence a cell off them),
+    # but its legs are still there: they count as still there, and the bed is not gone.
+    a, b = Room(), Room()
+    bed = ("bed", (5.0, 4.0), (2.0, 0.9), 0.0)
+    a.objects.append(bed)
+    b.objects.append(bed)
+    north = a.legs(*bed[1:])[2:]  # the other bed's two legs, 35 cm north of this one's (its list took them)
+    a.loose_legs += [tuple(north[0] + (-0.645, 0.355)), tuple(north[1] + (0.645, 0.355))]
+    b.dropped += [tuple(leg + (0.04, 0.0)) for leg in b.legs(*bed[1:])]
+    r = _diff(a, b)
+    assert r.counts()["object_disappeared"] == 0 and r.counts()["object_moved"] == 0

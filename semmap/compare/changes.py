@@ -393,17 +393,19 @@ def _elongated(o: _Obj) -> bool:
     return o.cells.shape[0] >= 4 and length >= 1.3 * max(width, 1e-3)
 
 
-def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], other_observed: NDArray[np.bool_],
-                     people: NDArray[np.bool_], st: ChangeSettings, left_out: dict[str, int],
-                     key: str) -> list[_Obj]:
-    """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). An object
-    the other session did not see enough of is left out (counted under ``key``), never called gone."""
+def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArray[np.bool_],
+                     other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
+                     left_out: dict[str, int], key: str) -> list[_Obj]:
+    """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). A cell with
+    an obstacle of the other session within the tolerance (``still``) is there still; one beside
+    people (``people``) with none is no evidence either way. An object the other session did not see
+    enough of is left out (counted under ``key``), never called gone."""
     out = []
     for o in objs:
         if o.cells.shape[0] == 0:
             continue
         r, c = o.cells[:, 0], o.cells[:, 1]
-        clear = ~people[r, c]  # cells beside people are no evidence either way
+        clear = ~people[r, c] | still[r, c]
         if clear.sum() < max(2, 0.3 * r.size) or float(other_observed[r, c][clear].mean()) < st.seen_share:
             left_out[key] += 1
             continue
@@ -573,8 +575,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # not hide the chair
         people_for_a = lo.dyn_a | _dilate(lo.dyn_b, 1.5)
         people_for_b = lo.dyn_b | _dilate(lo.dyn_a, 1.5)
-        gone = _changed_objects(objs_a, removed, obs_b, people_for_a, st, left_out, "objects_unobserved_in_b")
-        new = _changed_objects(objs_b, added, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
+        gone = _changed_objects(objs_a, removed, near_b, obs_b, people_for_a, st, left_out, "objects_unobserved_in_b")
+        new = _changed_objects(objs_b, added, near_a, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True

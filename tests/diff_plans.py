@@ -33,6 +33,9 @@ class Room:
         #: which legs (indices 0-3) each object's entry in the object list holds; all when absent (a build
         #: may list a table's far legs as another object, or as none)
         self.listed_legs: dict[int, tuple[int, ...]] = {}
+        #: legs (indices 0-3) of an object the session did not see: not drawn, their floor seen free
+        #: (rays passing a thin leg carve it away)
+        self.unseen_legs: dict[int, tuple[int, ...]] = {}
         self.people: list[tuple[float, float]] = []
         #: points cleaning took for people and dropped (dynamic evidence, no obstacle): a chair's legs
         self.dropped: list[tuple[float, float]] = []
@@ -79,9 +82,11 @@ class Room:
         objs = []
         for k, (cls, c, size, yaw) in enumerate(self.objects):
             legs = self.legs(c, size, yaw)
-            for leg in legs:  # a leg: a 4 cm square
-                mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
-            listed = list(self.listed_legs.get(k, range(4)))
+            unseen = self.unseen_legs.get(k, ())
+            for i, leg in enumerate(legs):  # a leg: a 4 cm square
+                if i not in unseen:
+                    mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
+            listed = [i for i in self.listed_legs.get(k, range(4)) if i not in unseen]
             if len(listed) == 4:
                 cw = np.asarray(c, float)
                 fp = se2_apply(t_map_world, self.legs(c, (size[0] + 0.06, size[1] + 0.06), yaw))

@@ -232,3 +232,21 @@ def test_a_bed_still_there_is_not_gone_when_people_walked_by_its_legs_and_a_neig
     b.dropped += [tuple(leg + (0.04, 0.0)) for leg in b.legs(*bed[1:])]
     r = _diff(a, b)
     assert r.counts()["object_disappeared"] == 0 and r.counts()["object_moved"] == 0
+
+
+def test_a_chair_one_session_saw_two_legs_of_is_not_gone_when_the_other_saw_all_four():
+    # legs at cell centres of A's grid: one cell each, two of A's four cells B saw as free floor
+    a, b = Room(), Room()
+    chair = ("chair", (6.0, 3.0), (0.41, 0.41), 0.0)
+    a.objects.append(chair)
+    b.objects.append(chair)
+    b.unseen_legs[0] = (1, 2)  # B saw two legs; rays passing the thin other two carved them away
+    r = _diff(a, b)
+    assert r.counts()["object_disappeared"] == 0 and r.counts()["static_removed"] == 0
+    assert not (r.mask == 2).any()
+    # a chair moved by its own width, one pair of legs landing where the other pair stood, did move
+    a, b = Room(), Room()
+    a.objects.append(chair)
+    b.objects.append(("chair", (6.0 + 0.39, 3.0), (0.45, 0.45), 0.0))
+    moved = _diff(a, b)
+    assert moved.counts()["object_moved"] == 1 and moved.counts()["object_appeared"] == 0

@@ -251,6 +251,30 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
     return pose, rms
 
 
+def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj]) -> list[_Obj]:
+    """``changed`` less the objects that are an object of their class in ``unchanged_other`` (the
+    other session's objects that did not change) seen more fully: most of that object's cells, and a
+    third of this one's, lie within a cell and a half of each other (two legs of a chair in A, four in
+    B). Not when they share a cell or two: a build may list a moved table with a leg of the unchanged
+    table beside it, or two beds as one."""
+    out = []
+    for o in changed:
+        xy = o.cells.astype(np.float64)
+        same = False
+        for u in unchanged_other:
+            if u.src.class_name != o.src.class_name or not u.cells.shape[0] or not xy.shape[0]:
+                continue
+            uxy = u.cells.astype(np.float64)
+            d_o = cKDTree(uxy).query(xy)[0]
+            d_u = cKDTree(xy).query(uxy)[0]
+            if float(np.mean(d_o <= 1.5)) >= 1.0 / 3.0 and float(np.mean(d_u <= 1.5)) >= 0.5:
+                same = True
+                break
+        if not same:
+            out.append(o)
+    return out
+
+
 def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
     """Centres of the groups of points (cells) closer than ``link`` to each other: an object's legs."""
     n = xy.shape[0]
@@ -577,6 +601,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         people_for_b = lo.dyn_b | _dilate(lo.dyn_a, 1.5)
         gone = _changed_objects(objs_a, removed, near_b, obs_b, people_for_a, st, left_out, "objects_unobserved_in_b")
         new = _changed_objects(objs_b, added, near_a, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
+        # an object whose legs stand on an unchanged object of its class in the other session is that
+        # object, seen more fully by one session (two legs of a chair in A, four in B)
+        gone = _seen_better(gone, [o for o in objs_b if not any(o is n for n in new)])
+        new = _seen_better(new, [o for o in objs_a if not any(o is g for g in gone)])
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True

@@ -42,6 +42,9 @@ class Room:
         #: legs flagged movable that no object of the list holds (the nearest object within a metre
         #: takes them)
         self.loose_legs: list[tuple[float, float]] = []
+        #: legs the map lost to rays grazing past them but which beams hit again and again: free cells,
+        #: faint obstacles
+        self.faint_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
 
     def legs(self, c, size, yaw):
@@ -102,11 +105,15 @@ class Room:
                                          float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
         for p in self.loose_legs:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
+        faint = np.zeros(spec.shape, bool)
+        for p in self.faint_legs:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), faint)
         for p in self.dropped:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), dyn)
         for p in self.people:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
         free = inside & ~occ
-        return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True)
+        return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True,
+                       faint=faint & ~occ)
 
 

@@ -250,3 +250,17 @@ def test_a_chair_one_session_saw_two_legs_of_is_not_gone_when_the_other_saw_all_
     b.objects.append(("chair", (6.0 + 0.39, 3.0), (0.45, 0.45), 0.0))
     moved = _diff(a, b)
     assert moved.counts()["object_moved"] == 1 and moved.counts()["object_appeared"] == 0
+
+
+def test_a_chair_whose_legs_the_other_map_kept_only_as_faint_obstacles_is_not_gone():
+    # B's map lost the chair's thin legs to rays grazing past them (free cells), but beams hit them
+    # again and again (faint obstacles): something stood there, so the chair is not gone. Without
+    # those hits the same floor would mean it is.
+    chair = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0)
+    for faint, gone in ((True, 0), (False, 1)):
+        a, b = Room(), Room()
+        a.objects.append(chair)
+        if faint:
+            b.faint_legs += [tuple(leg) for leg in b.legs(*chair[1:])]
+        r = _diff(a, b)
+        assert r.counts()["object_disappeared"] == gone

@@ -54,7 +54,7 @@ CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appear
                 "newly_explored", "no_longer_covered")
 
 # bits of the code image both sessions are resampled through
-_OCC, _FREE, _SEMI, _DYN = 1, 2, 4, 8
+_OCC, _FREE, _SEMI, _DYN, _FAINT = 1, 2, 4, 8, 16
 
 
 @dataclass(frozen=True)
@@ -127,6 +127,9 @@ class LaidOut:
     free_b: NDArray[np.bool_]
     semi_b: NDArray[np.bool_]
     dyn_b: NDArray[np.bool_]
+    #: faint obstacles (see :class:`Session`): free cells that were hit again and again
+    faint_a: NDArray[np.bool_] | None = None
+    faint_b: NDArray[np.bool_] | None = None
 
 
 def _code(s: Session) -> NDArray[np.uint8]:
@@ -135,6 +138,8 @@ def _code(s: Session) -> NDArray[np.uint8]:
     c[s.free & ~s.occupied] |= _FREE
     c[s.semi_static] |= _SEMI
     c[s.dynamic] |= _DYN
+    if s.faint is not None:
+        c[s.faint] |= _FAINT
     return c
 
 
@@ -175,7 +180,8 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
 
     return LaidOut(spec, (r0, c0, sa.height, sa.width),
                    bits(code_a, _OCC), bits(code_a, _FREE), bits(code_a, _SEMI), bits(code_a, _DYN),
-                   bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN))
+                   bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN),
+                   bits(code_a, _FAINT), bits(code_b, _FAINT))
 
 
 _disk = disk_kernel
@@ -567,8 +573,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # furniture is matched at a finer tolerance than walls: a chair's legs 10 cm from a wall are
     # not the wall (the alignment is good to a cell)
     fine = min(tol, 1.0)
-    near_a = np.where(semi_b, _dilate(lo.occ_a, fine), _dilate(lo.occ_a, tol))
-    near_b = np.where(semi_a, _dilate(lo.occ_b, fine), _dilate(lo.occ_b, tol))
+    # a faint obstacle (a thin leg the map lost to rays grazing past it) is an obstacle here: the
+    # session saw something stand there
+    obst_a = lo.occ_a if lo.faint_a is None else lo.occ_a | lo.faint_a
+    obst_b = lo.occ_b if lo.faint_b is None else lo.occ_b | lo.faint_b
+    near_a = np.where(semi_b, _dilate(obst_a, fine), _dilate(obst_a, tol))
+    near_b = np.where(semi_a, _dilate(obst_b, fine), _dilate(obst_b, tol))
     # where either session saw people, an obstacle may be a person the other's cleaning left in (a
     # person standing out of the camera's view has no label of its own): no change. Only for pieces
     # a person could be: a cabinet face a metre long with one person-labelled cell beside it is new

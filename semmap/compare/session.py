@@ -19,7 +19,12 @@ from ..grid import SemiStaticObject
 from ..io.mapserver import read_map
 from ..records import GridSpec, Mobility
 
-__all__ = ["Session", "open_session"]
+__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "open_session"]
+
+#: a cell the map calls free is a faint obstacle when at least this many beams ended in it, and this
+#: share of the beams that reached it (a person walking through ends a beam or two among hundreds)
+FAINT_MIN_HITS = 3
+FAINT_MIN_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,10 @@ class Session:
     semantic: bool
     #: the map's yaw in its YAML (map_server's third ``origin`` value); 0 for semmap's maps
     yaw: float = 0.0
+    #: cells not occupied whose LiDAR hits were outweighed by rays passing through them, but which
+    #: were hit again and again (a thin chair leg in a cell, grazed by passing rays): something
+    #: stood there. None for a plain map (no hit counts)
+    faint: NDArray[np.bool_] | None = None
 
     @property
     def name(self) -> str:
@@ -69,9 +78,13 @@ def open_session(path: str | Path) -> Session:
         dyn_hits = mob[Mobility.DYNAMIC].astype(np.float32)
         labelled = mob[Mobility.STATIC:].sum(axis=0, dtype=np.float32)
         dynamic = np.asarray(m.cleaned.dynamic_removed, bool) | ((dyn_hits > 0) & (dyn_hits >= 0.3 * labelled))
+        occupied = np.asarray(m.occupied, bool)
+        hits = layers.hits.astype(np.float32)
+        seen = hits + layers.free.astype(np.float32)
+        faint = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS) & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
-        return Session(p, m.spec, np.asarray(m.occupied, bool), np.asarray(m.free, bool),
-                       np.asarray(m.semi_static, bool), dynamic, m.objects, bool(m.class_names))
+        return Session(p, m.spec, occupied, np.asarray(m.free, bool), np.asarray(m.semi_static, bool), dynamic,
+                       m.objects, bool(m.class_names), faint=faint)
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

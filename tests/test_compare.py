@@ -264,3 +264,11 @@ def test_a_chair_whose_legs_the_other_map_kept_only_as_faint_obstacles_is_not_go
             b.faint_legs += [tuple(leg) for leg in b.legs(*chair[1:])]
         r = _diff(a, b)
         assert r.counts()["object_disappeared"] == gone
+
+
+def test_change_counts_read_as_people_say_them():
+    from semmap.compare.write import count_label
+
+    assert count_label("static_added", 1) == "1 new static obstacle"
+    assert count_label("object_moved", 4) == "4 movable objects moved"
+    assert count_label("newly_explored", 2) == "2 areas newly explored"

@@ -30,7 +30,7 @@ from ..io.yamlio import write_yaml
 from .changes import CHANGE_TYPES
 from .result import DiffResult
 
-__all__ = ["TYPE_LABELS", "summary_lines", "write_diff_files"]
+__all__ = ["TYPE_LABELS", "TYPE_PLURALS", "count_label", "summary_lines", "write_diff_files"]
 
 #: how people read each change type
 TYPE_LABELS = {
@@ -42,6 +42,23 @@ TYPE_LABELS = {
     "newly_explored": "area newly explored",
     "no_longer_covered": "area no longer covered",
 }
+
+#: the same, for more than one
+TYPE_PLURALS = {
+    "static_added": "new static obstacles",
+    "static_removed": "removed static obstacles",
+    "object_moved": "movable objects moved",
+    "object_appeared": "movable objects appeared",
+    "object_disappeared": "movable objects disappeared",
+    "newly_explored": "areas newly explored",
+    "no_longer_covered": "areas no longer covered",
+}
+
+
+def count_label(kind: str, n: int) -> str:
+    """``n`` changes of ``kind``, as people say it: "1 new static obstacle", "4 movable objects moved"."""
+    return f"{n} {TYPE_LABELS[kind] if n == 1 else TYPE_PLURALS[kind]}"
+
 
 _ADDED = (0.10, 0.62, 0.20)
 _REMOVED = (0.85, 0.15, 0.15)
@@ -67,12 +84,12 @@ def summary_lines(r: DiffResult) -> list[str]:
              f"overlap {al['overlap'] * 100:.0f} %"]
     lines += [f"  warning    {w}" for w in r.warnings]
     counts = r.counts()
-    shown = [f"{n} {TYPE_LABELS[k]}" for k, n in counts.items() if n]
+    shown = [count_label(k, n) for k, n in counts.items() if n]
     lines.append("  changes    " + (", ".join(shown) if shown else "none"))
     for c in r.changes:
         if c.type == "object_moved":
             lines.append(f"    {c.class_name} moved {c.displacement_m:.2f} m"
-                         + (f", turned {c.rotation_deg:+.0f}°" if c.rotation_deg else "")
+                         + (f", turned {c.rotation_deg:+.0f}°" if c.rotation_deg and abs(c.rotation_deg) >= 0.5 else "")
                          + f": ({c.from_xy[0]:.2f}, {c.from_xy[1]:.2f}) -> ({c.to_xy[0]:.2f}, {c.to_xy[1]:.2f})"
                          if c.from_xy and c.to_xy else "")
     left = r.left_out
@@ -164,7 +181,7 @@ def _overlay(r: DiffResult, path: Path) -> None:
                                   size_vertical=spec.resolution * 2))
     counts = r.counts()
     ax.set_title(f"{r.b.name} against {r.a.name}: " + ", ".join(
-        f"{n} {TYPE_LABELS[k]}" for k, n in counts.items() if n) + ("" if r.semantic else " (geometry only)"),
+        count_label(k, n) for k, n in counts.items() if n) + ("" if r.semantic else " (geometry only)"),
         fontsize=9)
     ax.set_xlabel(f"x [m] ({r.a.name}'s map frame)")
     ax.set_ylabel("y [m]")

@@ -629,10 +629,10 @@ class LoopClosureConfig(_Model):
     min_inliers: float = Field(0.6, gt=0, le=1, description="share of a keyframe's points that must lie within "
                                                             "inlier_distance of the place matched")
     inlier_distance: float = Field(0.1, gt=0, le=10, description="m")
-    refuse_min_shift: float = Field(0.025, ge=0, le=100, description="the grid is fused again from the corrected "
-                                                                      "poses when one moved a point 5 m from the "
-                                                                      "robot by more than this, m (else the first "
-                                                                      "fusion stands)")
+    refuse_min_shift: float = Field(0.025, ge=0, le=100, description="no longer used (accepted so that older "
+                                                                      "configurations load): with loop closure the "
+                                                                      "grid is fused once, at the end, from the "
+                                                                      "corrected poses")
 
 
 class RefineConfig(_Model):

@@ -608,8 +608,10 @@ class InProcessMapper:
         t0 = time.perf_counter()
         pose = self._registrar.register(painted, odom_pose)
         t1 = time.perf_counter()
-        self._grid.integrate(pose, painted)
-        self._refuse.keep(painted)
+        if self._refuse.deferred:
+            self._refuse.keep(painted)
+        else:
+            self._grid.integrate(pose, painted)
         self._sample.add(len(self._poses) // 3, painted)
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
@@ -622,7 +624,7 @@ class InProcessMapper:
         t0 = time.perf_counter()
         final = self._registrar.close_loops()
         t1 = time.perf_counter()
-        grid = self._refuse.fuse_again(poses, final, lambda: SemanticGrid(*self._grid_args)) or self._grid
+        grid = self._refuse.fuse_at_end(poses, final, lambda: SemanticGrid(*self._grid_args)) or self._grid
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
         return MapperResult(poses if final is None else final, grid.layers(), self._registrar.stats, self._busy[0],
@@ -633,30 +635,35 @@ class InProcessMapper:
 
 
 class _Refusion:
-    """With loop closure: the painted scans, spooled to disk, fused again from the corrected poses."""
+    """With loop closure: the painted scans, spooled to disk, fused once at the end from the poses
+    loop closure corrected. Fusing them as they come as well would cost a second fusion of the
+    whole tour, and CPU the painter and the registration need while the tour plays (2 cores)."""
 
     def __init__(self, reg_cfg: RegistrationConfig) -> None:
         from .grid.spool import ScanSpool
 
         self._spool = ScanSpool() if reg_cfg.loop_closure.enabled else None
-        self._min_shift = reg_cfg.loop_closure.refuse_min_shift
+
+    @property
+    def deferred(self) -> bool:
+        """Scans are kept to be fused at the end, not fused as they come."""
+        return self._spool is not None
 
     def keep(self, painted: PaintedScan) -> None:
         if self._spool is not None:
             self._spool.append(painted)
 
-    def fuse_again(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
-                   new_grid: Callable[[], Any]) -> Any:
-        """A grid fused from the ``final`` poses, or None when they moved no point 5 m out by more than
-        ``refuse_min_shift`` from ``poses`` (or there are none)."""
-        if self._spool is None or final is None or final.shape != poses.shape or len(self._spool) != len(poses):
+    def fuse_at_end(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
+                    new_grid: Callable[[], Any]) -> Any:
+        """The grid fused from the ``final`` poses (the registered ``poses`` when loop closure gave
+        none); None when scans are not deferred."""
+        if self._spool is None:
             return None
-        dyaw = np.abs(np.angle(np.exp(1j * (final[:, 2] - poses[:, 2]))))
-        shift = np.hypot(*(final[:, :2] - poses[:, :2]).T) + 5.0 * dyaw
-        if not shift.size or float(shift.max()) <= self._min_shift:
-            return None
+        use = final if final is not None and final.shape == poses.shape else poses
+        if len(self._spool) != len(use):
+            raise RuntimeError(f"fusion: {len(self._spool)} scans kept for {len(use)} poses")
         grid = new_grid()
-        for pose, painted in zip(final, self._spool):
+        for pose, painted in zip(use, self._spool):
             grid.integrate(pose, painted)
         return grid
 
@@ -715,14 +722,16 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
         while (batch := inbox.recv()) is not None:
             t0 = time.perf_counter()
             for pose, painted in batch:
-                grid.integrate(pose, painted)
-                refuse.keep(painted)
+                if refuse.deferred:
+                    refuse.keep(painted)
+                else:
+                    grid.integrate(pose, painted)
                 sample.add(len(poses) // 3, painted)
                 poses.extend(np.asarray(pose, np.float64).tolist())
             busy += time.perf_counter() - t0
         final = inbox.recv()  # the poses loop closure corrected (None: as registered)
         t0 = time.perf_counter()
-        grid = refuse.fuse_again(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names)) or grid
+        grid = refuse.fuse_at_end(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names)) or grid
         busy += time.perf_counter() - t0
     finally:
         refuse.close()

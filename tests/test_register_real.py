@@ -235,3 +235,37 @@ def test_icp_errors_of_a_young_map_are_not_learnt_as_a_wheel_scale_error(learn_a
         assert worst < 0.06 and abs(kd + 0.029) < 0.01  # 1/1.03 - 1: the wheels' error, learnt
     else:
         assert worst > 0.1  # the young map's error taken for the wheels'
+
+
+@pytest.mark.parametrize("workers", [False, True], ids=["in-process", "worker-processes"])
+def test_with_loop_closure_the_grid_is_fused_once_from_the_final_poses(workers):
+    # the scans are kept and fused at the end from the poses the build returns, loop closure's
+    # corrections included: the map and the trajectory written beside it always agree
+    from semmap.config import GridConfig, LoopClosureConfig
+    from semmap.grid import SemanticGrid
+    from semmap.workers import InProcessMapper, MapperWorkers
+
+    rng = np.random.default_rng(5)
+    reg = RegistrationConfig(mode="fused", loop_closure=LoopClosureConfig(enabled=True))
+    grid_cfg = GridConfig()
+    names = ("person", "chair")
+    truth = [(0.05 * i, 0.02 * i, 0.03 * i) for i in range(40)]
+    scans = [synthetic_scan(p, rng, stamp_ns=i * 100_000_000, movers=[(1.0, 0.5)]) for i, p in enumerate(truth)]
+    scans = [PaintedScan(stamp_ns=s.stamp_ns, origin=s.origin, points=s.points, hit=s.hit, mobility=s.mobility,
+                         class_id=s.class_id, class_names=names) for s in scans]
+    mapper = MapperWorkers(reg, grid_cfg, names) if workers else InProcessMapper(reg, grid_cfg, names)
+    try:
+        mapper.wait_ready()
+        for s, p in zip(scans, truth):
+            mapper.push(s, np.array(p) + (0.01, 0.0, 0.0))
+        result = mapper.finish()
+    finally:
+        mapper.close()
+    assert result.poses.shape == (len(scans), 3)
+    again = SemanticGrid(grid_cfg, names)
+    for pose, s in zip(result.poses, scans):
+        again.integrate(pose, s)
+    expected = again.layers()
+    np.testing.assert_array_equal(result.layers.log_odds, expected.log_odds)
+    np.testing.assert_array_equal(result.layers.hits, expected.hits)
+    np.testing.assert_array_equal(result.layers.free, expected.free)

@@ -614,7 +614,7 @@ class EkfConfig(_Model):
 
 class LoopClosureConfig(_Model):
     """Loop closure (:mod:`semmap.register.loops`): keyframes, place recognition, ICP-verified loops and a
-    robust pose graph; the grid is fused again from the corrected poses."""
+    robust pose graph; the grid is fused once, at the end, from the corrected poses."""
 
     enabled: bool = Field(False, description="close loops: on long tours that come back, walls stop doubling")
     keyframe_distance: float = Field(0.5, gt=0, le=100, description="m driven between keyframes (graph nodes)")

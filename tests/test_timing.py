@@ -84,3 +84,22 @@ def test_the_hokuyo_bags_odometry_is_stamped_early():
     est = estimate_odometry_offset(stamps, points, ot, op[:, 2], cfg.registration)
     # measured by hand too (turn rates of ICP against the odometry's, from the sweeps' starts): 0.10-0.15 s
     assert est.used and 0.10 < est.offset_s < 0.20
+
+
+def test_the_estimate_does_not_search_for_loops_when_the_build_will(monkeypatch):
+    # the pre-pass needs scan matching's turn rates only; with loop closure on, it used to search
+    # its scans for loops and verify them, all of it thrown away
+    from semmap.config import LoopClosureConfig
+    from semmap.register.loops import LoopCloser
+
+    def refuse(*_a, **_k):
+        raise AssertionError("the offset estimate searched for loops")
+
+    monkeypatch.setattr(LoopCloser, "add", refuse)
+    stamps, poses = _turning_tour()
+    points = _scans(poses)
+    ot = np.arange(-1.0, 26.0, 0.02)
+    yaw = np.interp(ot + 0.15, stamps * 1e-9, np.unwrap(poses[:, 2]))
+    cfg = RegistrationConfig(loop_closure=LoopClosureConfig(enabled=True))
+    est = estimate_odometry_offset(stamps, points, (ot * 1e9).astype(np.int64), yaw, cfg)
+    assert est.used and est.offset_s == pytest.approx(0.15, abs=0.015)

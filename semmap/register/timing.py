@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import RegistrationConfig
+from ..config import LoopClosureConfig, RegistrationConfig
 from ..records import Mobility, PaintedScan
 
 __all__ = ["OffsetEstimate", "estimate_odometry_offset"]
@@ -56,7 +56,8 @@ def estimate_odometry_offset(stamps_ns: NDArray[np.int64], points: Sequence[NDAr
     ot = np.asarray(odom_stamps_ns, np.int64)
     if n < 20 or ot.size < 10:
         return OffsetEstimate(0.0, False, float("nan"), float("nan"), 0.0, n, "too few scans or odometry messages")
-    reg = Registrar(reg_cfg.model_copy(update={"mode": "icp"}))
+    # scan matching's turn rates only: loop closure would search these scans for loops to no use
+    reg = Registrar(reg_cfg.model_copy(update={"mode": "icp", "loop_closure": LoopClosureConfig()}))
     yaw = np.empty(n)
     for i in range(n):
         pts = np.asarray(points[i], np.float64).reshape(-1, 2)

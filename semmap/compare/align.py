@@ -273,7 +273,7 @@ def _score(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a:
 
 
 def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_inliers: float = 0.4,
-               max_ambiguity: float = 0.75, max_points: int = 4000, seed: int = 0) -> Alignment:
+               max_ambiguity: float = 0.75, max_points: int = 2500, seed: int = 0) -> Alignment:
     """The pose of B's map frame in A's (see the module's description); raises
     :class:`~semmap.errors.AlignmentError` when the maps cannot be aligned with confidence."""
     t0 = time.perf_counter()

@@ -613,8 +613,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         new = _changed_objects(objs_b, added, near_a, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
-        gone = _seen_better(gone, [o for o in objs_b if not any(o is n for n in new)])
-        new = _seen_better(new, [o for o in objs_a if not any(o is g for g in gone)])
+        new_ids = {id(o) for o in new}
+        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids])
+        gone_ids = {id(o) for o in gone}
+        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids])
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
@@ -648,12 +650,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         def furniture_b(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
             return lookup(furn_b, xy, False)
 
-        def own_cells(o: _Obj, other_free: NDArray[np.bool_]) -> NDArray[np.bool_]:
-            """The object's own cells the other session saw free: changed, however near a wall (a
-            couch pushed against one is within the tolerance of it, but labelled couch)."""
-            m = np.zeros(spec.shape, bool)
-            m[o.cells[:, 0], o.cells[:, 1]] = True
-            return m & other_free
+        def mark(o: _Obj, changed: NDArray[np.bool_], other_free: NDArray[np.bool_], zone: NDArray[np.bool_],
+                 value: int) -> None:
+            """Into the mask: the changed cells in the object's zone, and the object's own cells the
+            other session saw free, however near a wall (a couch pushed against one is within the
+            tolerance of it, but labelled couch)."""
+            mask[changed & zone] = value
+            r, c = o.cells[:, 0], o.cells[:, 1]
+            own = other_free[r, c] & zone[r, c]
+            mask[r[own], c[own]] = value
 
         for ia, ib in pairs:
             oa, ob = gone[ia], new[ib]
@@ -676,8 +681,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
                                   oa.src.class_name, (float(from_c[0]), float(from_c[1])),
                                   (float(new_c[0]), float(new_c[1])), disp, turn))
-            mask[(added | own_cells(ob, lo.free_a)) & zone] = 1
-            mask[(removed | own_cells(oa, lo.free_b)) & zone] = 2
+            mark(ob, added, lo.free_a, zone, 1)
+            mark(oa, removed, lo.free_b, zone, 2)
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
             for i in idx:
                 o = objs[i]
@@ -686,9 +691,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
                                       o.src.class_name))
                 if kind == "object_appeared":
-                    mask[(added | own_cells(o, lo.free_a)) & zone] = 1
+                    mark(o, added, lo.free_a, zone, 1)
                 else:
-                    mask[(removed | own_cells(o, lo.free_b)) & zone] = 2
+                    mark(o, removed, lo.free_b, zone, 2)
         # cells flagged movable, in an object or not, are never static changes
         on_objects = _dilate(on_objects | (lo.semi_a & lo.occ_a) | (lo.semi_b & lo.occ_b), near)
 

@@ -608,10 +608,7 @@ class InProcessMapper:
         t0 = time.perf_counter()
         pose = self._registrar.register(painted, odom_pose)
         t1 = time.perf_counter()
-        if self._refuse.deferred:
-            self._refuse.keep(painted)
-        else:
-            self._grid.integrate(pose, painted)
+        self._refuse.add(self._grid, pose, painted)
         self._sample.add(len(self._poses) // 3, painted)
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
@@ -644,14 +641,12 @@ class _Refusion:
 
         self._spool = ScanSpool() if reg_cfg.loop_closure.enabled else None
 
-    @property
-    def deferred(self) -> bool:
-        """Scans are kept to be fused at the end, not fused as they come."""
-        return self._spool is not None
-
-    def keep(self, painted: PaintedScan) -> None:
+    def add(self, grid: Any, pose: NDArray[np.float64], painted: PaintedScan) -> None:
+        """Fuse the scan into ``grid`` now, or, with loop closure, keep it for :meth:`fuse_at_end`."""
         if self._spool is not None:
             self._spool.append(painted)
+        else:
+            grid.integrate(pose, painted)
 
     def fuse_at_end(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
                     new_grid: Callable[[], Any]) -> Any:
@@ -661,7 +656,7 @@ class _Refusion:
             return None
         use = final if final is not None and final.shape == poses.shape else poses
         if len(self._spool) != len(use):
-            raise RuntimeError(f"fusion: {len(self._spool)} scans kept for {len(use)} poses")
+            raise InternalError(f"fusion: {len(self._spool)} scans kept for {len(use)} poses")
         grid = new_grid()
         for pose, painted in zip(use, self._spool):
             grid.integrate(pose, painted)
@@ -722,10 +717,7 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
         while (batch := inbox.recv()) is not None:
             t0 = time.perf_counter()
             for pose, painted in batch:
-                if refuse.deferred:
-                    refuse.keep(painted)
-                else:
-                    grid.integrate(pose, painted)
+                refuse.add(grid, pose, painted)
                 sample.add(len(poses) // 3, painted)
                 poses.extend(np.asarray(pose, np.float64).tolist())
             busy += time.perf_counter() - t0

@@ -46,6 +46,8 @@ class Room:
         #: faint obstacles
         self.faint_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
+        #: furniture the camera never labelled: its legs are static obstacles, in no object (class unused)
+        self.unlabelled: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
 
     def legs(self, c, size, yaw):
         """The four legs of a box object, world frame."""
@@ -103,6 +105,9 @@ class Room:
             cm = se2_apply(t_map_world, cw[None])[0]
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
                                          float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+        for _cls, c, size, yaw in self.unlabelled:
+            for leg in self.legs(c, size, yaw):
+                mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ)
         for p in self.loose_legs:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
         faint = np.zeros(spec.shape, bool)

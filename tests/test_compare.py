@@ -17,6 +17,8 @@ from diff_plans import RES, Room
 from semmap.compare import ChangeSettings, Session
 from semmap.compare.align import Alignment
 from semmap.compare.result import diff_sessions
+from semmap.compare.update import updated_objects
+from semmap.compare.write import summary_lines
 from semmap.geometry import se2_apply, se2_inverse
 
 T_A = np.array([1.0, 0.5, 0.0])  # A's map frame in the world
@@ -217,6 +219,79 @@ def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
     counts = r.counts()
     assert counts["object_moved"] == 1 and counts["object_disappeared"] == counts["object_appeared"] == 0
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
+
+
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(labelled_in):
+    # the chair stood beside the robot's path in one tour, out of the camera's view: its legs there are
+    # plain obstacles in no object. Its four legs fit the labelled chair's: a chair moved, not a chair
+    # gone and a static obstacle added
+    a, b = Room(), Room()
+    here, there = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0), ("chair", (6.3, 4.5), (0.45, 0.45), math.radians(30))
+    if labelled_in == "A":
+        a.objects.append(here)
+        b.unlabelled.append(there)
+    else:
+        a.unlabelled.append(here)
+        b.objects.append(there)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_disappeared"] == counts["object_appeared"] == 0
+    assert counts["static_added"] == counts["static_removed"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert mv.displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (6.3, 4.5)) < 0.05
+    # the updated map's object list has the chair where it went, and not where it was
+    chairs = [_world(o.centroid) for o in updated_objects(r) if o.class_name == "chair"]
+    assert len(chairs) == 1 and np.linalg.norm(chairs[0] - (6.3, 4.5)) < 0.1
+
+
+def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
+    # A's build drew the bed's box over the chair beside it (and listed the bed after it); the chair's
+    # legs are the chair's, so its move is one move and the bed did not change
+    a, b = Room(), Room()
+    a.objects += [("chair", (5.0, 3.0), (0.45, 0.45), 0.0), ("bed", (5.6, 3.2), (2.2, 1.6), 0.0)]
+    b.objects += [("chair", (5.2, 5.6), (0.45, 0.45), 0.0), ("bed", (5.6, 3.2), (2.2, 1.6), 0.0)]
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair" and mv.displacement_m == pytest.approx(math.hypot(0.2, 2.6), abs=0.05)
+
+
+def test_a_table_pushed_by_less_than_its_width_is_a_short_move():
+    # pushed 40 cm across its 50 cm width: B's back legs stand 4 cm from where A's front legs stood,
+    # so neither session's table has changed in the main; each saw floor where the other saw two legs
+    a, b = Room(), Room()
+    a.objects.append(("dining table", (5.0, 4.0), (1.2, 0.5), 0.0))
+    b.objects.append(("dining table", (5.0, 4.4), (1.2, 0.5), 0.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_appeared"] == counts["object_disappeared"] == counts["static_added"] == 0
+    assert r.of_type("object_moved")[0].displacement_m == pytest.approx(0.4, abs=0.05)
+
+
+def test_furniture_no_camera_labelled_that_moved_is_an_unlabelled_move_and_people_are_not():
+    # a chair beside the path in both tours: its four legs are plain obstacles in both maps. It moved
+    # 1.2 m and turned: one move of an unlabelled object. Two people (two legs each, seen as people)
+    # standing in A and B at different places fit each other as well, and are no move
+    a, b = Room(), Room()
+    a.unlabelled.append(("chair", (3.0, 2.0), (0.45, 0.45), 0.0))
+    b.unlabelled.append(("chair", (3.8, 2.9), (0.45, 0.45), math.radians(25)))
+    a.people.append((7.0, 5.0))
+    b.people.append((7.8, 5.5))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["static_added"] == counts["static_removed"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name is None
+    assert mv.displacement_m == pytest.approx(math.hypot(0.8, 0.9), abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (3.8, 2.9)) < 0.05
+    assert "unlabelled object moved" in "\n".join(summary_lines(r))
 
 
 def test_a_bed_still_there_is_not_gone_when_people_walked_by_its_legs_and_a_neighbour_moved():

@@ -195,11 +195,13 @@ def main() -> int:
         for s in results:
             moves = [m for m in s["moves"] if m["seen"]]  # moves the two sessions could see
             matched = sum(m["matched"] for m in moves)
+            unlabelled = sum(m["matched"] and m.get("unlabelled", False) for m in moves)
+            matched_txt = f"{matched} of {len(moves)}" + (f" ({unlabelled} unlabelled)" if unlabelled else "")
             errs = [m["displacement_error_m"] for m in moves if m["displacement_error_m"] is not None]
             worst = f"{max(errs) * 100:.1f}" if errs else "-"
             counts = ", ".join(f"{n} {k}" for k, n in s["counts"].items() if n)
             print(f"| {s['pair']} | {s['alignment_error_m'] * 100:.1f}, {s['alignment_error_deg']:.2f} | "
-                  f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched} of {len(moves)} | {worst} | "
+                  f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched_txt} | {worst} | "
                   f"{len(s['false_changes'])} | {counts} | {s['seconds']:.2f} |")
         for s in results:
             for f in s["false_changes"]:

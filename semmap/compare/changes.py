@@ -81,6 +81,10 @@ class ChangeSettings:
     seen_share: float = 0.6
     #: an obstacle no larger than this (m²) may be a leg of furniture the camera did not label
     leg_m2: float = 0.03
+    #: pieces of changed cells no camera labelled, at most this long, that a rigid motion lays onto each
+    #: other for at least ``unlabelled_fit`` of their cells, are an object that moved (class unknown)
+    max_object_m: float = 2.5
+    unlabelled_fit: float = 0.7
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -201,7 +205,11 @@ class _Obj:
 
 def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, spec: GridSpec,
              semi: NDArray[np.bool_]) -> list[_Obj]:
-    """The objects carried into A's frame (``T``: their map's pose in A's; None: they are A's)."""
+    """The objects carried into A's frame (``T``: their map's pose in A's; None: they are A's).
+
+    Each movable cell goes to the object whose box (grown by a cell) holds it, the smallest box first
+    (a chair beside a bed whose box the build drew over it is the chair's); else to the nearest
+    object's centroid within a metre."""
     out = []
     for o in objs:
         c = np.asarray(o.centroid, np.float64)
@@ -212,12 +220,11 @@ def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, 
             fp = se2_apply(T, fp) if fp.size else fp
             yaw = float(wrap_angle(yaw + float(T[2])))
         out.append(_Obj(o, c, yaw, fp))
-    # each semi-static cell belongs to the object whose footprint (grown by a cell) holds it, else to
-    # the nearest centroid within a metre
     rows, cols = np.nonzero(semi)
     if out and rows.size:
         img = np.zeros(spec.shape, np.int32)
-        for k, ob in enumerate(out):
+        for k in sorted(range(len(out)), key=lambda i: -_area(out[i].footprint)):
+            ob = out[k]
             if ob.footprint.shape[0] >= 3:
                 c = ob.footprint.mean(axis=0)
                 grown = c + (ob.footprint - c) * (1.0 + spec.resolution / max(1e-3, float(
@@ -235,6 +242,14 @@ def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, 
             sel = owner == k
             ob.cells = np.stack([rows[sel], cols[sel]], axis=1)
     return out
+
+
+def _area(poly: NDArray[np.float64]) -> float:
+    """The area of a polygon (K, 2); 0 for fewer than three corners."""
+    if poly.shape[0] < 3:
+        return 0.0
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
 
 
 def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.float64],
@@ -401,6 +416,174 @@ def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
                 used_b.add(ib[y])
     return (pairs, [i for i in range(len(objs_a)) if i not in used_a],
             [j for j in range(len(objs_b)) if j not in used_b])
+
+
+def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], added: NDArray[np.bool_],
+          still_a: NDArray[np.bool_], still_b: NDArray[np.bool_]) -> list[tuple[_Obj, _Obj]]:
+    """Pairs of objects that slid by less than their own size. Of ``objs_a`` (A's objects not matched
+    yet), those with two or more cells removed (B saw floor there), a quarter or more of their cells
+    that have no obstacle of B within the tolerance (``still_a``); each with the nearest object of
+    its class in ``objs_b`` (B's unmatched ones) within the larger one's length that has as much
+    added (A saw floor there). One session's evidence alone is not enough: a leg the other session
+    did not see is no move."""
+
+    def moved_share(o: _Obj, changed: NDArray[np.bool_], still: NDArray[np.bool_]) -> float:
+        r, c = o.cells[:, 0], o.cells[:, 1]
+        n = int(np.count_nonzero(changed[r, c]))
+        return n / max(1, int(np.count_nonzero(~still[r, c]))) if n >= 2 else 0.0
+
+    out = []
+    used: set[int] = set()
+    for oa in objs_a:
+        if moved_share(oa, removed, still_a) < 0.25:
+            continue
+        best, best_d = None, math.inf
+        for ob in objs_b:
+            if id(ob) in used or ob.src.class_name != oa.src.class_name:
+                continue
+            d = float(np.linalg.norm(ob.centroid - oa.centroid))
+            if d <= max(*oa.src.size, *ob.src.size) and d < best_d \
+                    and moved_share(ob, added, still_b) >= 0.25:
+                best, best_d = ob, d
+        if best is not None:
+            used.add(id(best))
+            out.append((oa, best))
+    return out
+
+
+def _pieces(changed: NDArray[np.bool_], group_cells: float) -> list[NDArray[np.intp]]:
+    """The cells (n, 2) row, col of each connected piece of ``changed`` (cells up to ``group_cells``
+    apart join: the legs of a table are one piece)."""
+    if not changed.any():
+        return []
+    lab, _ = ndimage.label(_dilate(changed, group_cells / 2.0), structure=np.ones((3, 3), bool))
+    lab = np.where(changed, lab, 0)
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        r, c = np.nonzero(lab[sl] == k)
+        if r.size:
+            out.append(np.stack([r + sl[0].start, c + sl[1].start], axis=1).astype(np.intp))
+    return out
+
+
+def _piece_box(cells: NDArray[np.intp], spec: GridSpec) -> tuple[NDArray[np.float64], float, float, float]:
+    """A piece's cell centres, and the length, width and heading of the smallest box around them."""
+    xy = _cells_xy(cells, spec)
+    _, (w, h), ang = cv2.minAreaRect(xy.astype(np.float32))
+    yaw = math.radians(ang) if w >= h else math.radians(ang) + math.pi / 2
+    return xy, float(max(w, h)), float(min(w, h)), float(wrap_angle(yaw))
+
+
+def _piece_object(cells: NDArray[np.intp], class_name: str, spec: GridSpec) -> _Obj:
+    """A piece of changed cells as an object (no footprint: its cells are what was seen of it)."""
+    xy, length, width, yaw = _piece_box(cells, spec)
+    c = xy.mean(axis=0)
+    res = spec.resolution
+    return _Obj(SemiStaticObject(class_name, (float(c[0]), float(c[1])), (length + res, width + res), yaw,
+                                 int(cells.shape[0])), c, yaw, np.zeros((0, 2)), cells)
+
+
+def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
+                         objects_in_a: bool) -> list[tuple[_Obj, _Obj]]:
+    """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
+    in B, with no object of its class to match) paired with a piece of the other session's changed
+    cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
+    ``max_move_m``, when a rigid motion lays at least 60 % of each one's cells on the other's (a
+    chair's four legs on four legs). The piece becomes an object of the same class. Pairs are (A's,
+    B's)."""
+    res = spec.resolution
+    tol = 1.6 * res
+    out: list[tuple[_Obj, _Obj]] = []
+    used: set[int] = set()
+    for o in objs:
+        if o.cells.shape[0] < 2:
+            continue
+        oxy = _cells_xy(o.cells, spec)
+        length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
+        best, best_q = None, 0.0
+        for k, cells in enumerate(pieces):
+            if k in used or cells.shape[0] < 2:
+                continue
+            pxy, p_len, _, p_yaw = _piece_box(cells, spec)
+            if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) > st.max_move_m:
+                continue
+            if p_len > 1.3 * length + 2 * res:
+                continue  # larger than the object: something else
+            src, dst = (oxy, pxy) if objects_in_a else (pxy, oxy)
+            # candidate turns as for two objects: none and the turn between the boxes, each also by
+            # quarter and half turns
+            box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
+            turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+            motion = _fit_motion(src, dst, turns, res)
+            fwd = cKDTree(dst).query(se2_apply(motion, src))[0] <= tol
+            back = cKDTree(src).query(se2_apply(se2_inverse(motion), dst))[0] <= tol
+            q = min(float(fwd.mean()), float(back.mean()))
+            if q >= 0.6 and q > best_q:
+                best, best_q = k, q
+        if best is None:
+            continue
+        used.add(best)
+        twin = _piece_object(pieces[best], o.src.class_name, spec)
+        out.append((o, twin) if objects_in_a else (twin, o))
+    return out
+
+
+def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]], people: NDArray[np.bool_],
+                      dyn_a: NDArray[np.bool_], dyn_b: NDArray[np.bool_], spec: GridSpec, st: ChangeSettings
+                      ) -> list[tuple[_Obj, _Obj]]:
+    """Moves of furniture neither session's camera labelled: a piece of A's removed cells and one of
+    B's added cells (no objects, each at most ``max_object_m`` long, of lengths within 30 % of each
+    other and at most ``max_move_m`` apart) onto which a rigid motion lays at least
+    ``unlabelled_fit`` of each one's cells (four legs on four legs), the best pair first. Their
+    class is None: an object, of unknown class. A piece whose own cells are a third or more people's
+    (``dyn_a``, ``dyn_b``: a person cleaning left in) is none; a pair with a piece where people were
+    seen (``people``) needs three legs or more on each side: two people's legs fit each other too."""
+    res = spec.resolution
+    tol = 1.6 * res
+
+    def usable(cells: NDArray[np.intp], dyn: NDArray[np.bool_]) -> bool:
+        return cells.shape[0] >= 3 and float(dyn[cells[:, 0], cells[:, 1]].mean()) < 1.0 / 3.0
+
+    ba = [_piece_box(c, spec) if usable(c, dyn_a) else None for c in pieces_a]
+    bb = [_piece_box(c, spec) if usable(c, dyn_b) else None for c in pieces_b]
+    near_people_a = [bool(people[c[:, 0], c[:, 1]].any()) for c in pieces_a]
+    near_people_b = [bool(people[c[:, 0], c[:, 1]].any()) for c in pieces_b]
+    cands = []
+    for i, pa in enumerate(ba):
+        if pa is None or pa[1] > st.max_object_m:
+            continue
+        for j, pb in enumerate(bb):
+            if pb is None or pb[1] > st.max_object_m:
+                continue
+            if abs(pa[1] - pb[1]) > 0.3 * max(pa[1], pb[1]) + 2 * res:
+                continue
+            if (near_people_a[i] or near_people_b[j]) and (
+                    _legs(pa[0], 1.6 * res).shape[0] < 3 or _legs(pb[0], 1.6 * res).shape[0] < 3):
+                continue
+            if float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0))) > st.max_move_m:
+                continue
+            turn = _box_turn(pa[3], pb[3])
+            turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+            motion = _fit_motion(pa[0], pb[0], turns, res)
+            fwd = cKDTree(pb[0]).query(se2_apply(motion, pa[0]))[0] <= tol
+            back = cKDTree(pa[0]).query(se2_apply(se2_inverse(motion), pb[0]))[0] <= tol
+            q = min(float(fwd.mean()), float(back.mean()))
+            if q >= st.unlabelled_fit:
+                cands.append((i, j, float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))))
+    if not cands:
+        return []
+    # of the pairs that fit, the ones that move the least in all (two alike chairs swapped places is
+    # less likely than each moved a little)
+    cost = np.full((len(pieces_a), len(pieces_b)), 1e6)
+    for i, j, d in cands:
+        cost[i, j] = d
+    out = []
+    for i, j in zip(*linear_sum_assignment(cost), strict=True):
+        if cost[i, j] < 1e6:
+            out.append((_piece_object(pieces_a[i], "", spec), _piece_object(pieces_b[j], "", spec)))
+    return out
 
 
 def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
@@ -583,8 +766,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # person standing out of the camera's view has no label of its own): no change. Only for pieces
     # a person could be: a cabinet face a metre long with one person-labelled cell beside it is new
     on_people = _dilate(lo.dyn_a | lo.dyn_b, tol)
-    added = _void_people(lo.occ_b & lo.free_a & ~near_a, people & ~semi_b, on_people, st, res)
-    removed = _void_people(lo.occ_a & lo.free_b & ~near_b, people & ~semi_a, on_people, st, res)
+    added_raw, removed_raw = lo.occ_b & lo.free_a & ~near_a, lo.occ_a & lo.free_b & ~near_b
+    added = _void_people(added_raw, people & ~semi_b, on_people, st, res)
+    removed = _void_people(removed_raw, people & ~semi_a, on_people, st, res)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0,
@@ -623,6 +807,43 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         gone = _merge_fragments(gone, sizes.size_of, spec)
         new = _merge_fragments(new, sizes.size_of, spec)
         pairs, only_a, only_b = _match_objects(gone, new, st)
+        moved = [(gone[i], new[j]) for i, j in pairs]
+        # an object slid by less than its own size (a table pushed 30 cm) keeps part of its cells on
+        # the other session's: it is gone with nothing new to match, or not gone at all, but each
+        # session saw floor where the other saw some of its legs
+        gone_ids, new_ids = {id(o) for o in gone}, {id(o) for o in new}
+        slid = _slid([gone[i] for i in only_a] + [o for o in objs_a if id(o) not in gone_ids],
+                     [new[j] for j in only_b] + [o for o in objs_b if id(o) not in new_ids], removed, added,
+                     near_b, near_a)
+        slid_ids = {id(o) for pair in slid for o in pair}
+        moved += slid
+        only_a = [i for i in only_a if id(gone[i]) not in slid_ids]
+        only_b = [j for j in only_b if id(new[j]) not in slid_ids]
+        # the other end of a move may be cells the camera never labelled (the object stood beside the
+        # robot's path, out of the camera's view): a piece of the other session's changes that is no
+        # object, of its size, onto which its cells fit
+        group = st.group_m / res
+        for objs_idx, objs_all, changed, in_a in ((only_a, gone, added & ~_dilate(semi_b, near), True),
+                                                  (only_b, new, removed & ~_dilate(semi_a, near), False)):
+            partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, group), spec, st, in_a)
+            moved += partners
+            done = {id(p[0] if in_a else p[1]) for p in partners}
+            objs_idx[:] = [i for i in objs_idx if id(objs_all[i]) not in done]
+        # and furniture neither camera labelled (beside the path in both tours) moved when a piece of
+        # A's removed cells fits one of B's added cells, legs on legs; the pieces the moves above
+        # took are theirs
+        taken = np.zeros(spec.shape, bool)
+        for pair in moved:
+            for o in pair:
+                taken[o.cells[:, 0], o.cells[:, 1]] = True
+        # Pieces people stood by count too (people's evidence voids a chair-sized piece, and a chair
+        # the camera never saw is one), but only with three legs or more on each side: two people's
+        # legs fit each other as well as a chair's do
+        free_a_pieces = [p for p in _pieces(removed_raw & ~_dilate(semi_a, near), group)
+                         if not taken[p[:, 0], p[:, 1]].any()]
+        free_b_pieces = [p for p in _pieces(added_raw & ~_dilate(semi_b, near), group)
+                         if not taken[p[:, 0], p[:, 1]].any()]
+        moved += _unlabelled_moves(free_a_pieces, free_b_pieces, people, lo.dyn_a, lo.dyn_b, spec, st)
         # an object of A carried by a candidate motion is contradicted on floor B saw free with no
         # obstacle of B within a cell and a half, and beyond half a metre of anything B saw (behind
         # its walls, out of the building); it is explained on furniture either session saw: cells
@@ -630,8 +851,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         b_floor = lo.free_b & ~_dilate(lo.occ_b, 1.5)
         b_contra = b_floor | ~_dilate(obs_b, 0.5 / res)
         leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
-        furn_a = _dilate(semi_a | _small_blobs(lo.occ_a, leg_cells), 1.5) if pairs else semi_a
-        furn_b = _dilate(semi_b | _small_blobs(lo.occ_b, leg_cells), 1.5) if pairs else semi_b
+        furn_a = _dilate(semi_a | _small_blobs(lo.occ_a, leg_cells), 1.5) if moved else semi_a
+        furn_b = _dilate(semi_b | _small_blobs(lo.occ_b, leg_cells), 1.5) if moved else semi_b
 
         def lookup(img: NDArray[np.bool_], xy: NDArray[np.float64], outside: bool) -> NDArray[np.bool_]:
             c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
@@ -660,8 +881,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             own = other_free[r, c] & zone[r, c]
             mask[r[own], c[own]] = value
 
-        for ia, ib in pairs:
-            oa, ob = gone[ia], new[ib]
+        for oa, ob in moved:
             elongated = _elongated(oa) and _elongated(ob)
             src_xy, dst_xy = _cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec)
             # candidate turns: none and the turn between the two boxes, each also by quarter and half
@@ -679,7 +899,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 continue
             n = int(ob.cells.shape[0])
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
-                                  oa.src.class_name, (float(from_c[0]), float(from_c[1])),
+                                  oa.src.class_name or None, (float(from_c[0]), float(from_c[1])),
                                   (float(new_c[0]), float(new_c[1])), disp, turn))
             mark(ob, added, lo.free_a, zone, 1)
             mark(oa, removed, lo.free_b, zone, 2)

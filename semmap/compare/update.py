@@ -15,16 +15,19 @@ says where it is; rebuild or merge the tours to map it).
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..geometry import se2_apply, wrap_angle
 from ..grid import CleanedMap, SemiStaticObject
 from ..io.mapserver import write_map
 from ..mapfolder.reader import MapFolder
+from .changes import Change
 from .result import DiffResult
 
 __all__ = ["updated_objects", "write_updated_map"]
@@ -53,7 +56,8 @@ def updated_objects(r: DiffResult) -> tuple[SemiStaticObject, ...]:
     if not changed:
         return tuple(keep)
     # drop A's objects that moved or vanished: the ones nearest where each change starts
-    for c in changed:
+    dropped: dict[int, SemiStaticObject] = {}
+    for n, c in enumerate(changed):
         if c.type == "object_appeared" or not keep:
             continue
         start = c.from_xy if c.type == "object_moved" and c.from_xy else c.centroid
@@ -61,21 +65,44 @@ def updated_objects(r: DiffResult) -> tuple[SemiStaticObject, ...]:
         if same:
             d = [float(np.hypot(keep[i].centroid[0] - start[0], keep[i].centroid[1] - start[1])) for i in same]
             if min(d) <= 1.5:
-                del keep[same[int(np.argmin(d))]]
-    # add B's objects where each move ends and each new object is
+                dropped[n] = keep.pop(same[int(np.argmin(d))])
+    # add B's objects where each move ends and each new object is; an object moved to where B's camera
+    # did not label it is A's, carried by the move
     b_objs = [_moved_object(o, r) for o in r.b.objects]
-    if b_objs:
-        tree = cKDTree(np.array([o.centroid for o in b_objs]))
-        for c in changed:
-            if c.type == "object_disappeared":
-                continue
-            end = c.to_xy if c.type == "object_moved" and c.to_xy else c.centroid
+    tree = cKDTree(np.array([o.centroid for o in b_objs])) if b_objs else None
+    for n, c in enumerate(changed):
+        if c.type == "object_disappeared":
+            continue
+        end = c.to_xy if c.type == "object_moved" and c.to_xy else c.centroid
+        found = False
+        if tree is not None:
             d, k = tree.query(end, k=min(4, len(b_objs)))
             for dist, j in zip(np.atleast_1d(d), np.atleast_1d(k), strict=True):
                 if b_objs[j].class_name == c.class_name and dist <= 1.5 and b_objs[j] not in keep:
                     keep.append(b_objs[j])
+                    found = True
                     break
+        if not found and n in dropped and c.from_xy and c.to_xy:
+            keep.append(_carried(dropped[n], c))
     return tuple(keep)
+
+
+def _carried(o: SemiStaticObject, c: Change) -> SemiStaticObject:
+    """A's object ``o`` moved as ``c`` says: turned by its rotation about where it was, then shifted."""
+    assert c.from_xy is not None and c.to_xy is not None
+    turn = math.radians(c.rotation_deg or 0.0)
+    cs, sn = math.cos(turn), math.sin(turn)
+    f, t = np.asarray(c.from_xy, np.float64), np.asarray(c.to_xy, np.float64)
+
+    def move(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        q = p - f
+        return np.stack([cs * q[:, 0] - sn * q[:, 1], sn * q[:, 0] + cs * q[:, 1]], axis=1) + t
+
+    cen = move(np.array([o.centroid], np.float64))[0]
+    fp = move(np.asarray(o.footprint, np.float64).reshape(-1, 2)) if o.footprint else np.zeros((0, 2))
+    return SemiStaticObject(o.class_name, (round(float(cen[0]), 3), round(float(cen[1]), 3)), o.size,
+                            float(wrap_angle(o.yaw + turn)), o.n_cells, o.views,
+                            tuple((round(float(x), 3), round(float(y), 3)) for x, y in fp))
 
 
 def write_updated_map(r: DiffResult, out: Path) -> list[str]:

@@ -27,10 +27,10 @@ from matplotlib.patches import FancyArrowPatch, Patch
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from ..io.yamlio import write_yaml
-from .changes import CHANGE_TYPES
+from .changes import CHANGE_TYPES, Change
 from .result import DiffResult
 
-__all__ = ["TYPE_LABELS", "TYPE_PLURALS", "count_label", "summary_lines", "write_diff_files"]
+__all__ = ["TYPE_LABELS", "TYPE_PLURALS", "count_label", "object_name", "summary_lines", "write_diff_files"]
 
 #: how people read each change type
 TYPE_LABELS = {
@@ -53,6 +53,12 @@ TYPE_PLURALS = {
     "newly_explored": "areas newly explored",
     "no_longer_covered": "areas no longer covered",
 }
+
+
+def object_name(c: Change) -> str:
+    """What an object change is of: its class, or "unlabelled object" for furniture no camera
+    labelled (its move found from its legs alone)."""
+    return c.class_name or "unlabelled object"
 
 
 def count_label(kind: str, n: int) -> str:
@@ -88,7 +94,7 @@ def summary_lines(r: DiffResult) -> list[str]:
     lines.append("  changes    " + (", ".join(shown) if shown else "none"))
     for c in r.changes:
         if c.type == "object_moved":
-            lines.append(f"    {c.class_name} moved {c.displacement_m:.2f} m"
+            lines.append(f"    {object_name(c)} moved {c.displacement_m:.2f} m"
                          + (f", turned {c.rotation_deg:+.0f}°" if c.rotation_deg and abs(c.rotation_deg) >= 0.5 else "")
                          + f": ({c.from_xy[0]:.2f}, {c.from_xy[1]:.2f}) -> ({c.to_xy[0]:.2f}, {c.to_xy[1]:.2f})"
                          if c.from_xy and c.to_xy else "")
@@ -154,7 +160,7 @@ def _overlay(r: DiffResult, path: Path) -> None:
         if c.type == "object_moved" and c.from_xy and c.to_xy:
             ax.add_patch(FancyArrowPatch(c.from_xy, c.to_xy, arrowstyle="-|>", mutation_scale=12, lw=1.6,
                                          color=_MOVED))
-            ax.annotate(f"{c.class_name} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, dy),
+            ax.annotate(f"{object_name(c)} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, dy),
                         textcoords="offset points", fontsize=7, color=_MOVED)
         elif c.type in ("object_appeared", "object_disappeared"):
             col = _ADDED if c.type == "object_appeared" else _REMOVED
@@ -214,7 +220,8 @@ def _report(r: DiffResult, path: Path) -> None:
     for i, c in enumerate(sorted(r.changes, key=lambda c: order[c.type]), 1):
         moved = f"{c.displacement_m:.3f}" if c.displacement_m is not None else ""
         turned = f"{c.rotation_deg:+.1f}" if c.rotation_deg is not None else ""
-        lines.append(f"| {i} | {TYPE_LABELS[c.type]} | {c.class_name or ''} | ({c.centroid[0]:.2f}, "
+        what = object_name(c) if c.type.startswith("object") else ""
+        lines.append(f"| {i} | {TYPE_LABELS[c.type]} | {what} | ({c.centroid[0]:.2f}, "
                      f"{c.centroid[1]:.2f}) | {c.area_m2:.3f} | {moved} | {turned} |")
     left = r.left_out
     lines += ["", "Not reported: cells only one session observed (unobserved, not changed); "

@@ -16,7 +16,9 @@ The scores:
   the place);
 * **moved objects**: each truth move of a semi-static object the sessions could see (B observed
   where it was, A observed where it went, and each tour's LiDAR hit it), matched to a reported move
-  of its class ending within 0.5 m of its new place, and the reported displacement's error;
+  of its class ending within 0.5 m of its new place, and the reported displacement's error. A move of
+  furniture neither camera labelled is reported with no class; it matches a truth move of any class
+  (``unlabelled`` says so, and the benchmark counts such matches apart);
 * **false changes**: reported changes (not explored areas) farther than 0.5 m from every truth change.
 """
 
@@ -125,8 +127,8 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
         seen = _share_near(seen_b, spec_t, src) >= 0.5 and _share_near(seen_a, spec_t, dst) >= 0.5
         best, best_d = None, math.inf
         for k, c in enumerate(reported):
-            if c.class_name != t.get("class"):
-                continue
+            if c.class_name is not None and c.class_name != t.get("class"):
+                continue  # an object of another class (None: furniture no camera labelled, of any class)
             d = float(np.linalg.norm(rep_to[k] - dst))
             if d < best_d:
                 best, best_d = k, d
@@ -134,7 +136,8 @@ def score_diff(tour_a: str | Path, map_a: str | Path, tour_b: str | Path, map_b:
         err = abs(float(reported[best].displacement_m or 0.0) - float(t["displacement_m"])) if match and \
             best is not None else None
         moves.append({"name": t.get("name"), "class": t.get("class"), "displacement_m": t["displacement_m"],
-                      "matched": match, "displacement_error_m": err, "seen": seen})
+                      "matched": match, "displacement_error_m": err, "seen": seen,
+                      "unlabelled": bool(match and best is not None and reported[best].class_name is None)})
 
     # false changes: reported changes far from every truth change
     truth_pts = [np.stack([spec_t.origin_x + (c + 0.5) * spec_t.resolution,

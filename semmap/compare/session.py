@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError, MapFolderError, SemmapError
 from ..grid import SemiStaticObject
+from ..grid.clean import semi_cell_classes
 from ..io.mapserver import read_map
 from ..records import GridSpec, Mobility
 
@@ -48,6 +49,10 @@ class Session:
     #: were hit again and again (a thin chair leg in a cell, grazed by passing rays): something
     #: stood there. None for a plain map (no hit counts)
     faint: NDArray[np.bool_] | None = None
+    #: per movable cell, the class it is named by (an index into ``class_names``; -1 elsewhere), as
+    #: the build grouped the objects: a cell inside two objects' boxes belongs to the one of its class
+    semi_class: NDArray[np.int16] | None = None
+    class_names: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -82,9 +87,15 @@ def open_session(path: str | Path) -> Session:
         hits = layers.hits.astype(np.float32)
         seen = hits + layers.free.astype(np.float32)
         faint = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS) & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
+        semi = np.asarray(m.semi_static, bool)
+        semi_class = None
+        if m.class_names and layers.class_ids:
+            k = semi_cell_classes(semi, layers, m.class_names)
+            semi_class = np.where(k >= 0, np.asarray(layers.class_ids, np.int16)[np.maximum(k, 0)], -1).astype(np.int16)
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
-        return Session(p, m.spec, occupied, np.asarray(m.free, bool), np.asarray(m.semi_static, bool), dynamic,
-                       m.objects, bool(m.class_names), faint=faint)
+        return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
+                       m.objects, bool(m.class_names), faint=faint, semi_class=semi_class,
+                       class_names=tuple(m.class_names))
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

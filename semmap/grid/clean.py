@@ -70,7 +70,7 @@ from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
 __all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "evidence_occupancy", "group_cells",
-           "nearest_value"]
+           "nearest_value", "semi_cell_classes"]
 
 log = logging.getLogger(__name__)
 
@@ -676,6 +676,18 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     return CleanedMap(spec, occupied, free, unknown, semi_static, dropped, tuple(objects))
 
 
+def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str]) -> NDArray[np.intp]:
+    """Per semi-static cell, the class layer (index into ``layers.class_ids``) it is named by: its own
+    most-hit movable class, or else the nearest named cell's; -1 elsewhere, and everywhere when no
+    cell is named. The objects are grouped per this class."""
+    best = _best_semi_class(layers, names)
+    named = semi & (best >= 0)
+    if not named.any():
+        return np.full(semi.shape, -1, np.intp)
+    _, near = nearest_value(named, best)
+    return np.where(semi, near, -1).astype(np.intp)
+
+
 def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
              link_cells: float) -> list[SemiStaticObject]:
     """Group the semi-static cells into objects: per class, then by the camera's sightings, proximity and size.
@@ -690,13 +702,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
         return []
     spec = layers.spec
     res = spec.resolution
-    best = _best_semi_class(layers, names)
-    named = semi & (best >= 0)
-    if named.any():
-        _, near = nearest_value(named, best)
-        cls = np.where(semi, near, -1)
-    else:
-        cls = np.full(semi.shape, -1, np.intp)
+    cls = semi_cell_classes(semi, layers, names)
     sizes = _class_sizes(layers, names)
     layer_names = [names[c] for c in layers.class_ids]
     labelled = layers.labelled

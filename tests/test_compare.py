@@ -261,6 +261,27 @@ def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
     assert mv.class_name == "chair" and mv.displacement_m == pytest.approx(math.hypot(0.2, 2.6), abs=0.05)
 
 
+@pytest.mark.parametrize("class_layer", [True, False])
+def test_a_table_leg_inside_the_box_of_a_chair_tucked_under_it_stays_the_tables(class_layer):
+    # a chair tucked in at a table's corner: the chair's box holds one of the table's legs. The chair
+    # is pulled out 1 m; the table stays. With the class each cell was named by, that leg stays the
+    # table's and the chair's move is measured on its own legs; a map without that layer gives the
+    # cell to the smaller box (the chair's), and the move is still found
+    a, b = Room(), Room()
+    table = ("dining table", (5.0, 4.0), (1.2, 0.8), 0.0)
+    a.objects += [table, ("chair", (4.55, 3.75), (0.45, 0.45), 0.0)]
+    b.objects += [table, ("chair", (4.55, 2.75), (0.45, 0.45), 0.0)]
+    a.class_layer = b.class_layer = class_layer
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    if class_layer:
+        assert mv.displacement_m == pytest.approx(1.0, abs=0.05)
+        assert np.linalg.norm(_world(mv.to_xy) - (4.55, 2.75)) < 0.05
+
+
 def test_a_table_pushed_by_less_than_its_width_is_a_short_move():
     # pushed 40 cm across its 50 cm width: B's back legs stand 4 cm from where A's front legs stood,
     # so neither session's table has changed in the main; each saw floor where the other saw two legs

@@ -174,6 +174,25 @@ def test_the_far_face_of_a_wall_one_session_saw_from_one_side_is_no_change():
     assert counts["static_added"] == 1
 
 
+def test_a_face_one_session_saw_only_edge_on_is_no_change_and_a_new_thin_wall_across_its_floor_is():
+    # a 40 cm pillar: A saw its north and east faces only, and its beams grazing along the west and
+    # south faces marked the cells on them free (its inside A never observed). B saw all four faces.
+    # Nothing changed there. A new thin partition across floor A saw on both sides is still added
+    a, b = Room(), Room()
+    x0, y0, x1, y1 = 4.0, 3.0, 4.4, 3.4
+    a.walls += [(x0, y1, x1, y1), (x1, y1, x1, y0)]
+    a.unseen.append((x0 + 0.04, y0 + 0.04, x1 - 0.01, y1 - 0.01))
+    b.walls += [(x0, y1, x1, y1), (x1, y1, x1, y0), (x0, y0, x0, y1), (x0, y0, x1, y0)]
+    b.unseen.append((x0 + 0.01, y0 + 0.01, x1 - 0.01, y1 - 0.01))
+    b.walls.append((7.0, 6.0, 7.0, 7.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["static_added"] == 1, counts
+    assert r.left_out["hidden_faces"] >= 1
+    added = _mask_world(r, 1)
+    assert np.all(np.abs(added[:, 0] - 7.0) < 0.1)
+
+
 def _mask_world(r, value):
     rows, cols = np.nonzero(r.mask == value)
     return se2_apply(T_A, np.stack([r.spec.origin_x + (cols + 0.5) * RES, r.spec.origin_y + (rows + 0.5) * RES],

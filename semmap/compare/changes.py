@@ -749,6 +749,31 @@ def _small_blobs(occ: NDArray[np.bool_], max_cells: int) -> NDArray[np.bool_]:
     return np.asarray(small[lab], bool)
 
 
+def _thin(piece: NDArray[np.bool_]) -> bool:
+    """At most two cells thick everywhere (no 3 x 3 block of it): a face, not a body."""
+    return not ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any()
+
+
+def _hidden_faces(labels: NDArray[np.int32], ids: list[int], other_unseen: NDArray[np.bool_]) -> set[int]:
+    """The pieces (label ids) that are a face the other session only saw edge-on: a strip at most two
+    cells thick with 80 % of its cells within two cells of what the other session never observed
+    (the inside of a pillar it saw two faces of). Its beams grazed along the face, marking the cells
+    on it free at a 5 cm grid; a new wall across floor the other session saw has floor on both sides."""
+    if not ids:
+        return set()
+    band = _dilate(other_unseen, 2.0)
+    out = set()
+    slices = ndimage.find_objects(labels)
+    for k in ids:
+        sl = slices[k - 1]
+        if sl is None:
+            continue
+        piece = labels[sl] == k
+        if _thin(piece) and float(band[sl][piece].mean()) >= 0.8:
+            out.add(k)
+    return out
+
+
 def _wall_faces(labels: NDArray[np.int32], ids: list[int], other_occ: NDArray[np.bool_], band_cells: float
                 ) -> set[int]:
     """The pieces (label ids) that are the far face of a wall the other session saw from one side only:
@@ -765,7 +790,7 @@ def _wall_faces(labels: NDArray[np.int32], ids: list[int], other_occ: NDArray[np
         if sl is None:
             continue
         piece = labels[sl] == k
-        if ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any():
+        if not _thin(piece):
             continue  # three cells thick somewhere: a real obstacle
         if float(band[sl][piece].mean()) >= 0.8:
             out.add(k)
@@ -802,7 +827,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0,
-                "wall_faces": 0}
+                "wall_faces": 0, "hidden_faces": 0}
     left_out["cells_near_people"] = int(((lo.occ_b & lo.free_a) | (lo.occ_a & lo.free_b))[people].sum())
 
     # movable objects: an object whose cells the other session saw free is gone (or new); gone and
@@ -951,12 +976,16 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, value, other_occ in (("static_added", added & ~on_objects, 1, lo.occ_a),
-                                          ("static_removed", removed & ~on_objects, 2, lo.occ_b)):
+    for kind, cells, value, other_occ, other_free in (("static_added", added & ~on_objects, 1, lo.occ_a, lo.free_a),
+                                                      ("static_removed", removed & ~on_objects, 2, lo.occ_b,
+                                                       lo.free_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
         faces = _wall_faces(labels, ids, other_occ, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
+        hidden = _hidden_faces(labels, [k for k in ids if k not in faces], ~(other_occ | other_free))
+        left_out["hidden_faces"] += len(hidden)
+        faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
         mask[kept & ~np.isin(labels, list(faces))] = value
 

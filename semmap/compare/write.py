@@ -228,5 +228,7 @@ def _report(r: DiffResult, path: Path) -> None:
               f"{left.get('cells_near_people', 0)} cells where people were seen; "
               f"{left.get('objects_unobserved_in_b', 0)} of A's movable objects B did not see enough of, and "
               f"{left.get('objects_unobserved_in_a', 0)} of B's that A did not see; "
-              f"{left.get('wall_faces', 0)} strips along a wall that one session saw from one side only.", ""]
+              f"{left.get('wall_faces', 0)} strips along a wall that one session saw from one side only; "
+              f"{left.get('hidden_faces', 0)} faces one session saw only edge-on (beside what it never "
+              "observed, such as the inside of a pillar).", ""]
     path.write_text("\n".join(lines), encoding="utf-8")

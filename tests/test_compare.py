@@ -17,6 +17,7 @@ from diff_plans import RES, Room
 from semmap.compare import ChangeSettings, Session
 from semmap.compare.align import Alignment
 from semmap.compare.result import diff_sessions
+from semmap.compare.session import people_cells
 from semmap.compare.update import updated_objects
 from semmap.compare.write import summary_lines
 from semmap.geometry import se2_apply, se2_inverse
@@ -191,6 +192,24 @@ def test_a_face_one_session_saw_only_edge_on_is_no_change_and_a_new_thin_wall_ac
     assert r.left_out["hidden_faces"] >= 1
     added = _mask_world(r, 1)
     assert np.all(np.abs(added[:, 0] - 7.0) < 0.1)
+
+
+def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a_dropped_leg_is():
+    occ = np.zeros((20, 20), bool)
+    dropped = np.zeros_like(occ)
+    occ[5, 2:12] = True  # a face ...
+    occ[5, [4, 8]] = False
+    dropped[5, [4, 8]] = True  # ... with two cells grazing beams passed, in gaps of it
+    dropped[9, 2:12] = True  # a line of a face one cell thick, carved whole
+    dropped[14:17, 14:17] = True  # a leg of a person who walked away: three cells across
+    dropped[12, 3] = True  # a lone cell: may be a person
+    person = np.zeros(occ.shape, np.int32)
+    labelled = np.zeros(occ.shape, np.int32)
+    person[9, 6], labelled[9, 6] = 3, 4  # the camera saw a person on this one
+    people = people_cells(occ, dropped, person, labelled)
+    assert not people[5, 4] and not people[5, 8]
+    assert not people[9, 2] and not people[9, 11] and people[9, 6]
+    assert people[14:17, 14:17].all() and people[12, 3]
 
 
 def _mask_world(r, value):

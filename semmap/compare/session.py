@@ -20,7 +20,7 @@ from ..grid.clean import semi_cell_classes
 from ..io.mapserver import read_map
 from ..records import GridSpec, Mobility
 
-__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "open_session"]
+__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "open_session", "people_cells"]
 
 #: a cell the map calls free is a faint obstacle when at least this many beams ended in it, and this
 #: share of the beams that reached it (a person walking through ends a beam or two among hundreds)
@@ -68,6 +68,52 @@ class Session:
         return self.occupied & ~self.semi_static
 
 
+def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person_hits: NDArray[np.integer],
+                 labelled_hits: NDArray[np.integer]) -> NDArray[np.bool_]:
+    """Where a map saw people: cells cleaning ``dropped`` as dynamic, and cells a good share (30 %)
+    of whose camera-labelled hits were people (a person cleaning left in; a stray person label on a
+    chair leg is not enough). A dropped cell no camera labelled a person is none when it lies in a gap
+    of a surface (obstacles on two opposite sides) or in a line of such cells one cell thick: beams
+    grazing a face seen obliquely pass some of its cells now and then, and cleaning drops them as
+    "seen through"; a person's leg is two or three cells across."""
+    person = np.asarray(person_hits, np.float32)
+    unlabelled = dropped & (person == 0)
+    faces = (_surface_gaps(occupied) | _lines(unlabelled)) & unlabelled
+    return (dropped & ~faces) | ((person > 0) & (person >= 0.3 * np.asarray(labelled_hits, np.float32)))
+
+
+def _surface_gaps(occupied: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Cells with obstacles on two opposite sides (left and right, above and below, or across a
+    diagonal): a gap in a surface. Cleaning drops such a cell of a face seen obliquely as "seen
+    through" (beams grazing the face pass it now and then); that is no person."""
+    p = np.pad(occupied, 1)
+    pairs = ((p[1:-1, :-2], p[1:-1, 2:]), (p[:-2, 1:-1], p[2:, 1:-1]), (p[:-2, :-2], p[2:, 2:]),
+             (p[:-2, 2:], p[2:, :-2]))
+    out = np.zeros_like(occupied)
+    for u, v in pairs:
+        out |= u & v
+    return out
+
+
+def _lines(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The pieces of ``cells`` (8-connected) one cell thick (no 2 x 2 block) and three cells long or
+    more: a face carved by beams grazing it, not a person's leg (two or three cells across)."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros_like(cells)
+    block = ndimage.binary_erosion(cells, np.ones((2, 2), bool), border_value=0)  # a corner of a 2 x 2 block
+    thick = np.zeros(n + 1, bool)
+    thick[np.unique(lab[block])] = True
+    out = np.zeros(n + 1, bool)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is not None and not thick[k] and max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) >= 3:
+            out[k] = True
+    out[0] = False
+    return np.asarray(out[lab], bool)
+
+
 def open_session(path: str | Path) -> Session:
     """Open a map folder (a folder with ``summary.json``), a folder holding a ``map.yaml``, or a
     map_server ``*.yaml`` file. Errors are one line naming the path."""
@@ -77,13 +123,10 @@ def open_session(path: str | Path) -> Session:
     if p.is_dir() and (p / "summary.json").is_file():
         m = load_map_folder(p)
         layers = m.layers
-        # people: cells cleaning dropped as dynamic, and cells a good share of whose labelled hits were
-        # people (a person cleaning left in); a stray person label on a chair leg is not enough
         mob = layers.mobility
-        dyn_hits = mob[Mobility.DYNAMIC].astype(np.float32)
-        labelled = mob[Mobility.STATIC:].sum(axis=0, dtype=np.float32)
-        dynamic = np.asarray(m.cleaned.dynamic_removed, bool) | ((dyn_hits > 0) & (dyn_hits >= 0.3 * labelled))
         occupied = np.asarray(m.occupied, bool)
+        dynamic = people_cells(occupied, np.asarray(m.cleaned.dynamic_removed, bool), mob[Mobility.DYNAMIC],
+                               mob[Mobility.STATIC:].sum(axis=0))
         hits = layers.hits.astype(np.float32)
         seen = hits + layers.free.astype(np.float32)
         faint = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS) & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))

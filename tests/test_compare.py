@@ -246,6 +246,20 @@ def test_a_couch_pushed_against_a_wall_has_its_wall_side_in_the_change_mask():
     assert back.shape[0] >= 4  # the back legs' cells, labelled couch, within a cell of the wall
 
 
+def test_a_new_cabinet_against_a_wall_has_its_side_faces_in_the_mask_up_to_the_wall():
+    # B's new cabinet (static: no camera class) stands against the north wall; A saw the floor free up
+    # to the wall. Its side faces' last cells lie within the tolerance of the wall, and are the cabinet
+    a, b = Room(floor_margin=0.0), Room(floor_margin=0.0)
+    b.walls += [(3.0, 8.0, 3.0, 7.4), (3.0, 7.4, 4.2, 7.4), (4.2, 7.4, 4.2, 8.0)]
+    b.unseen.append((3.01, 7.41, 4.19, 8.0))
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1
+    added = _mask_world(r, 1)
+    for x in (3.0, 4.2):
+        side = added[np.abs(added[:, 0] - x) < 0.04]
+        assert side[:, 1].max() > 7.88, (x, side[:, 1].max())  # up to the wall's cell
+
+
 def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
     # A's build listed the chair's front legs and back legs as two chairs; the whole is a chair
     a, b = Room(), Room()

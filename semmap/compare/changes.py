@@ -976,9 +976,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, value, other_occ, other_free in (("static_added", added & ~on_objects, 1, lo.occ_a, lo.free_a),
-                                                      ("static_removed", removed & ~on_objects, 2, lo.occ_b,
-                                                       lo.free_b)):
+    for kind, cells, value, own_occ, other_occ, other_free in (
+            ("static_added", added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a),
+            ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
         faces = _wall_faces(labels, ids, other_occ, 2.0 * tol)
@@ -987,7 +987,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
-        mask[kept & ~np.isin(labels, list(faces))] = value
+        # a change reaches on, through its own obstacle cells the other session saw free, up to the
+        # tolerance into the band by the other's obstacles: the end of a cabinet's face where it meets
+        # the wall it stands against
+        shown = kept & ~np.isin(labels, list(faces))
+        reach = own_occ & other_free & ~on_objects & ~people & (mask == 0)
+        for _ in range(int(math.ceil(tol))):
+            shown |= _dilate(shown, 1.5) & reach
+        mask[shown] = value
 
     # floor only one session observed
     min_explored = max(1, int(math.ceil(st.min_explored_m2 / (res * res))))

@@ -46,8 +46,9 @@ class Room:
         #: faint obstacles
         self.faint_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
-        #: whether the map carries the class each movable cell was named by (a build's class evidence)
-        self.class_layer = True
+        #: whether the session knows which object holds each movable cell (a semmap map folder does:
+        #: the diff regroups its cells as the build did)
+        self.object_layer = True
         #: furniture the camera never labelled: its legs are static obstacles, in no object (class unused)
         self.unlabelled: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
 
@@ -87,17 +88,19 @@ class Room:
             inside &= ~((world[:, 0] >= bx0) & (world[:, 0] <= bx1) & (world[:, 1] >= by0)
                         & (world[:, 1] <= by1)).reshape(spec.shape)
         objs = []
-        names = tuple(sorted({o[0] for o in self.objects}))
-        semi_class = np.full(spec.shape, -1, np.int16)
+        index = np.full(spec.shape, -1, np.int32)
         for k, (cls, c, size, yaw) in enumerate(self.objects):
             legs = self.legs(c, size, yaw)
             unseen = self.unseen_legs.get(k, ())
-            named = np.zeros(spec.shape, bool)
+            listed_here = self.listed_legs.get(k, range(4))
+            held = np.zeros(spec.shape, bool)
             for i, leg in enumerate(legs):  # a leg: a 4 cm square
                 if i not in unseen:
-                    mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi,
-                         named)
-            semi_class[named] = names.index(cls)
+                    square = leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)])
+                    mark(square, occ, semi)
+                    if i in listed_here:
+                        mark(square, held)
+            index[held] = k
             listed = [i for i in self.listed_legs.get(k, range(4)) if i not in unseen]
             if len(listed) == 4:
                 cw = np.asarray(c, float)
@@ -126,6 +129,6 @@ class Room:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
         free = inside & ~occ
         return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True,
-                       faint=faint & ~occ, semi_class=semi_class if self.class_layer else None, class_names=names)
+                       faint=faint & ~occ, object_index=index if self.object_layer else None)
 
 

@@ -134,9 +134,9 @@ class LaidOut:
     #: faint obstacles (see :class:`Session`): free cells that were hit again and again
     faint_a: NDArray[np.bool_] | None = None
     faint_b: NDArray[np.bool_] | None = None
-    #: per movable cell, the name of the class it is named by (None: no such layer)
-    class_a: NDArray[np.object_] | None = None
-    class_b: NDArray[np.object_] | None = None
+    #: per cell, the index of the object of its session that holds it (-1: none; None: not known)
+    index_a: NDArray[np.int32] | None = None
+    index_b: NDArray[np.int32] | None = None
 
 
 def _code(s: Session) -> NDArray[np.uint8]:
@@ -185,26 +185,18 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
     def bits(code: NDArray[np.uint8], bit: int) -> NDArray[np.bool_]:
         return (code & bit) > 0
 
-    class_a = class_b = None
-    if a.semi_class is not None:
-        ids_a = np.full(spec.shape, -1, np.int16)
-        ids_a[r0:r0 + sa.height, c0:c0 + sa.width] = a.semi_class
-        class_a = _class_names_of(ids_a, a.class_names)
-    if b.semi_class is not None:
-        ids_b = np.asarray(cv2.remap(b.semi_class, map_x, map_y, interpolation=cv2.INTER_NEAREST,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=-1), np.int16)
-        class_b = _class_names_of(ids_b, b.class_names)
+    index_a = index_b = None
+    if a.object_index is not None:
+        index_a = np.full(spec.shape, -1, np.int32)
+        index_a[r0:r0 + sa.height, c0:c0 + sa.width] = a.object_index
+    if b.object_index is not None:  # exact for indices below 2**24
+        index_b = np.asarray(cv2.remap(b.object_index.astype(np.float32), map_x, map_y,
+                                       interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                                       borderValue=-1), np.int32)
     return LaidOut(spec, (r0, c0, sa.height, sa.width),
                    bits(code_a, _OCC), bits(code_a, _FREE), bits(code_a, _SEMI), bits(code_a, _DYN),
                    bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN),
-                   bits(code_a, _FAINT), bits(code_b, _FAINT), class_a, class_b)
-
-
-def _class_names_of(ids: NDArray[np.int16], names: tuple[str, ...]) -> NDArray[np.object_]:
-    """Class ids to names (None for -1 and ids past the list), so sessions with different class
-    lists compare by name."""
-    table = np.array(list(names) + [None], dtype=object)
-    return np.asarray(table[np.where((ids >= 0) & (ids < len(names)), ids, len(names))], dtype=object)
+                   bits(code_a, _FAINT), bits(code_b, _FAINT), index_a, index_b)
 
 
 _disk = disk_kernel
@@ -223,13 +215,12 @@ class _Obj:
 
 
 def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, spec: GridSpec,
-             semi: NDArray[np.bool_], cell_class: NDArray[np.object_] | None = None) -> list[_Obj]:
+             semi: NDArray[np.bool_], index: NDArray[np.int32] | None = None) -> list[_Obj]:
     """The objects carried into A's frame (``T``: their map's pose in A's; None: they are A's).
 
-    Each movable cell goes to an object whose box holds it: one of the cell's own class
-    (``cell_class``, the class the build grouped it by) before any other, the smallest box first (a
-    table's box the build drew over a couch's front does not take the couch's cells); else to the
-    nearest object within a metre."""
+    Each movable cell goes to the object the build grouped it into (``index``, the object's place in
+    ``objs`` per cell, -1 for none); without it, or for a cell it leaves to none, to the object whose
+    box (grown by a cell) holds it, else to the nearest object's centroid within a metre."""
     out = []
     for o in objs:
         c = np.asarray(o.centroid, np.float64)
@@ -243,25 +234,17 @@ def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, 
     rows, cols = np.nonzero(semi)
     if out and rows.size:
         img = np.zeros(spec.shape, np.int32)
-        own_img = np.zeros(spec.shape, np.int32)
-        cls = cell_class[rows, cols] if cell_class is not None else None
-        for k in sorted(range(len(out)), key=lambda i: -_area(out[i].footprint)):
-            ob = out[k]
+        for k, ob in enumerate(out):
             if ob.footprint.shape[0] >= 3:
                 c = ob.footprint.mean(axis=0)
                 grown = c + (ob.footprint - c) * (1.0 + spec.resolution / max(1e-3, float(
                     np.min(np.linalg.norm(ob.footprint - c, axis=1)))))
-                pts = [np.round(((grown - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16
-                                ).astype(np.int32)]
-                cv2.fillPoly(img, pts, k + 1, lineType=cv2.LINE_8, shift=4)
-                if cls is not None:
-                    box = np.zeros(spec.shape, np.uint8)
-                    cv2.fillPoly(box, pts, 1, lineType=cv2.LINE_8, shift=4)
-                    mine = (box[rows, cols] > 0) & (cls == ob.src.class_name)
-                    own_img[rows[mine], cols[mine]] = k + 1
+                pts = np.round(((grown - [spec.origin_x, spec.origin_y]) / spec.resolution - 0.5) * 16)
+                cv2.fillPoly(img, [pts.astype(np.int32)], k + 1, lineType=cv2.LINE_8, shift=4)
         owner = img[rows, cols].astype(np.intp) - 1
-        own = own_img[rows, cols].astype(np.intp) - 1
-        owner = np.where(own >= 0, own, owner)
+        if index is not None:
+            built = index[rows, cols].astype(np.intp)
+            owner = np.where((built >= 0) & (built < len(out)), built, owner)
         rest = owner < 0
         if rest.any():
             xy = _cells_xy(np.stack([rows[rest], cols[rest]], axis=1), spec)
@@ -272,14 +255,6 @@ def _objects(objs: tuple[SemiStaticObject, ...], T: NDArray[np.float64] | None, 
             sel = owner == k
             ob.cells = np.stack([rows[sel], cols[sel]], axis=1)
     return out
-
-
-def _area(poly: NDArray[np.float64]) -> float:
-    """The area of a polygon (K, 2); 0 for fewer than three corners."""
-    if poly.shape[0] < 3:
-        return 0.0
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
 
 
 def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.float64],
@@ -838,8 +813,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
 
         sizes = load_class_table()
         near = max(1.0, tol)
-        objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a, lo.class_a)
-        objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b, lo.class_b)
+        objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a, lo.index_a)
+        objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b, lo.index_b)
         obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
         # an object's own cells are furniture by its session's labels: cells its own session saw people
         # on are no evidence, nor cells within a cell and a half (the alignment's wobble) of people the

@@ -10,15 +10,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..config import CleaningConfig
 from ..errors import ConfigError, MapFolderError, SemmapError
 from ..grid import SemiStaticObject
-from ..grid.clean import semi_cell_classes
+from ..grid.clean import group_objects
 from ..io.mapserver import read_map
+from ..io.yamlio import read_yaml
 from ..records import GridSpec, Mobility
+
+if TYPE_CHECKING:
+    from ..mapfolder.reader import MapFolder
 
 __all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "open_session", "people_cells"]
 
@@ -49,10 +55,9 @@ class Session:
     #: were hit again and again (a thin chair leg in a cell, grazed by passing rays): something
     #: stood there. None for a plain map (no hit counts)
     faint: NDArray[np.bool_] | None = None
-    #: per movable cell, the class it is named by (an index into ``class_names``; -1 elsewhere), as
-    #: the build grouped the objects: a cell inside two objects' boxes belongs to the one of its class
-    semi_class: NDArray[np.int16] | None = None
-    class_names: tuple[str, ...] = ()
+    #: per cell, the index in ``objects`` of the object that holds it (-1: none), as the build grouped
+    #: them; None when it cannot be told (a plain map, or an object list that is not the build's)
+    object_index: NDArray[np.int32] | None = None
 
     @property
     def name(self) -> str:
@@ -114,6 +119,31 @@ def _lines(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
     return np.asarray(out[lab], bool)
 
 
+def _object_index(folder: Path, m: MapFolder) -> NDArray[np.int32] | None:
+    """Which object holds each movable cell, by regrouping the cells as the build did (its cleaning
+    settings from ``config.yaml``); None unless the regrouped objects are the listed ones, one for
+    one (an object list edited by hand, or by another semmap)."""
+    if not m.objects or not m.class_names:
+        return None
+    link = CleaningConfig().object_link_distance
+    cfg_path = folder / "config.yaml"
+    if cfg_path.is_file():
+        try:
+            cfg = read_yaml(cfg_path)
+            link = float(cfg.get("cleaning", {}).get("object_link_distance", link))
+        except (SemmapError, AttributeError, TypeError, ValueError):
+            return None
+    objs, index = group_objects(np.asarray(m.semi_static, bool), m.layers, m.class_names,
+                                link / m.spec.resolution)
+    if len(objs) != len(m.objects):
+        return None
+    for a, b in zip(objs, m.objects, strict=True):
+        if a.class_name != b.class_name or abs(a.centroid[0] - b.centroid[0]) > 2e-3 \
+                or abs(a.centroid[1] - b.centroid[1]) > 2e-3:
+            return None
+    return index
+
+
 def open_session(path: str | Path) -> Session:
     """Open a map folder (a folder with ``summary.json``), a folder holding a ``map.yaml``, or a
     map_server ``*.yaml`` file. Errors are one line naming the path."""
@@ -131,14 +161,10 @@ def open_session(path: str | Path) -> Session:
         seen = hits + layers.free.astype(np.float32)
         faint = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS) & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
         semi = np.asarray(m.semi_static, bool)
-        semi_class = None
-        if m.class_names and layers.class_ids:
-            k = semi_cell_classes(semi, layers, m.class_names)
-            semi_class = np.where(k >= 0, np.asarray(layers.class_ids, np.int16)[np.maximum(k, 0)], -1).astype(np.int16)
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
         return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
-                       m.objects, bool(m.class_names), faint=faint, semi_class=semi_class,
-                       class_names=tuple(m.class_names))
+                       m.objects, bool(m.class_names), faint=faint,
+                       object_index=_object_index(p, m))
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

@@ -70,7 +70,7 @@ from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
 __all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "evidence_occupancy", "group_cells",
-           "nearest_value", "semi_cell_classes"]
+           "group_objects", "nearest_value", "semi_cell_classes"]
 
 log = logging.getLogger(__name__)
 
@@ -670,7 +670,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     semi_static = occupied & semi
     free = (free | dropped) & ~occupied
     unknown = ~(occupied | free)
-    objects = _objects(semi_static, layers, names, cfg.object_link_distance / res)
+    objects, _ = group_objects(semi_static, layers, names, cfg.object_link_distance / res)
     log.info("cleaned map: %d occupied cells, %d dropped as dynamic, %d semi-static in %d objects",
              int(occupied.sum()), int(dropped.sum()), int(semi_static.sum()), len(objects))
     return CleanedMap(spec, occupied, free, unknown, semi_static, dropped, tuple(objects))
@@ -688,9 +688,11 @@ def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequen
     return np.where(semi, near, -1).astype(np.intp)
 
 
-def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
-             link_cells: float) -> list[SemiStaticObject]:
+def group_objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
+                  link_cells: float) -> tuple[list[SemiStaticObject], NDArray[np.int32]]:
     """Group the semi-static cells into objects: per class, then by the camera's sightings, proximity and size.
+    Returns the objects (sorted by centroid, y then x) and, per cell, the index of the object that
+    holds it (-1 for none).
 
     Each cell is named by its own most-hit movable class, or else by the nearest named cell's.
     Cells of one class join into objects as :func:`_join_parts` says (the camera's sightings,
@@ -698,8 +700,9 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     one object of its class (a row of chairs) is cut along its length into as many objects as
     fit. An object's ``views`` are the painted scans whose furniture points landed on it.
     """
+    index = np.full(semi.shape, -1, np.int32)
     if not semi.any():
-        return []
+        return [], index
     spec = layers.spec
     res = spec.resolution
     cls = semi_cell_classes(semi, layers, names)
@@ -708,6 +711,7 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
     labelled = layers.labelled
     seen_by = _scans_per_cell(layers.sightings, spec.shape)
     out: list[SemiStaticObject] = []
+    cells: list[tuple[NDArray[np.intp], NDArray[np.intp]]] = []
     for k in np.unique(cls[semi]):
         mask = semi & (cls == k)
         size = float(sizes[k])
@@ -726,8 +730,11 @@ def _objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],
                 r_, c_ = rows[sel][part], cols[sel][part]
                 views = seen_by(r_, c_) if seen_by is not None else int(labelled[r_, c_].max())
                 out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
-    out.sort(key=lambda o: (o.centroid[1], o.centroid[0]))
-    return out
+                cells.append((r_, c_))
+    ranked = sorted(range(len(out)), key=lambda i: (out[i].centroid[1], out[i].centroid[0]))
+    for j, i in enumerate(ranked):
+        index[cells[i]] = j
+    return [out[i] for i in ranked], index
 
 
 #: two parts of one class are one object when, of the scans that saw both on objects, at least this

@@ -117,6 +117,29 @@ def test_a_copy_of_a_map_folder_has_no_changes(demo_map, tmp_path):
     assert r.alignment.inlier_fraction > 0.98 and np.allclose(r.alignment.T_a_b, 0.0, atol=0.02)
 
 
+def test_the_diff_knows_which_object_holds_each_movable_cell_as_the_build_grouped_them(demo_map, tmp_path):
+    from semmap.compare.session import open_session
+
+    s = open_session(demo_map.out)
+    assert s.objects and s.object_index is not None
+    idx = s.object_index
+    assert set(np.unique(idx[s.semi_static]).tolist()) <= set(range(len(s.objects)))
+    assert (idx[~s.semi_static] == -1).all()
+    for k, o in enumerate(s.objects):  # each object's cells are its own: their count and centre
+        rows, cols = np.nonzero(idx == k)
+        assert rows.size == o.n_cells
+        cx = s.spec.origin_x + (cols.mean() + 0.5) * s.spec.resolution
+        cy = s.spec.origin_y + (rows.mean() + 0.5) * s.spec.resolution
+        assert abs(cx - o.centroid[0]) < 1e-3 and abs(cy - o.centroid[1]) < 1e-3
+    # an object list edited by hand is not the build's: no grouping, the boxes decide
+    b = tmp_path / "edited"
+    shutil.copytree(demo_map.out, b)
+    objs = json.loads((b / "semi_static_objects.json").read_text())
+    objs["objects"] = objs["objects"][1:]
+    (b / "semi_static_objects.json").write_text(json.dumps(objs))
+    assert open_session(b).object_index is None
+
+
 def test_three_sessions_give_a_history_folder(demo_map, changed, tmp_path, capsys):
     out = tmp_path / "history"
     assert main(["diff", str(demo_map.out), str(changed[0]), str(demo_map.out), "--out", str(out)]) == 0

@@ -85,6 +85,8 @@ class ChangeSettings:
     #: other for at least ``unlabelled_fit`` of their cells, are an object that moved (class unknown)
     max_object_m: float = 2.5
     unlabelled_fit: float = 0.7
+    #: ... and as many legs of each on the other's at least (one or two legs fit any blob)
+    min_fit_legs: int = 3
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -490,16 +492,32 @@ def _piece_object(cells: NDArray[np.intp], class_name: str, spec: GridSpec) -> _
                                  int(cells.shape[0])), c, yaw, np.zeros((0, 2)), cells)
 
 
+def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float
+               ) -> tuple[float, int]:
+    """How well one set of cells fits another by a rigid motion (for cells no camera labelled: only
+    their shape says they are one object): the smaller share of either set's cells the best motion
+    lays within 1.6 cells of the other's, and the fewer legs of either set it lays on a leg of the
+    other (within two cells)."""
+    tol = 1.6 * res
+    motion = _fit_motion(src, dst, turns, res)
+    moved, back = se2_apply(motion, src), se2_apply(se2_inverse(motion), dst)
+    q = min(float(np.mean(cKDTree(dst).query(moved)[0] <= tol)), float(np.mean(cKDTree(src).query(back)[0] <= tol)))
+    legs_a, legs_b = _legs(src, tol), _legs(dst, tol)
+    on_b = cKDTree(legs_b).query(se2_apply(motion, legs_a))[0] <= 2 * res
+    on_a = cKDTree(legs_a).query(se2_apply(se2_inverse(motion), legs_b))[0] <= 2 * res
+    return q, int(min(on_b.sum(), on_a.sum()))
+
+
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
                          objects_in_a: bool) -> list[tuple[_Obj, _Obj]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
-    ``max_move_m``, when a rigid motion lays at least 60 % of each one's cells on the other's (a
-    chair's four legs on four legs). The piece becomes an object of the same class. Pairs are (A's,
-    B's)."""
+    ``max_move_m``, when a rigid motion lays at least ``unlabelled_fit`` of each one's cells on the
+    other's and ``min_fit_legs`` legs or more of each on the other's (a chair's four legs on four
+    legs; one or two legs fit any blob). The piece becomes an object of the same class. Pairs are
+    (A's, B's)."""
     res = spec.resolution
-    tol = 1.6 * res
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
     for o in objs:
@@ -521,11 +539,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             # quarter and half turns
             box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            motion = _fit_motion(src, dst, turns, res)
-            fwd = cKDTree(dst).query(se2_apply(motion, src))[0] <= tol
-            back = cKDTree(src).query(se2_apply(se2_inverse(motion), dst))[0] <= tol
-            q = min(float(fwd.mean()), float(back.mean()))
-            if q >= 0.6 and q > best_q:
+            q, legs = _shape_fit(src, dst, turns, res)
+            if q >= st.unlabelled_fit and legs >= st.min_fit_legs and q > best_q:
                 best, best_q = k, q
         if best is None:
             continue
@@ -535,26 +550,22 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     return out
 
 
-def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]], people: NDArray[np.bool_],
-                      dyn_a: NDArray[np.bool_], dyn_b: NDArray[np.bool_], spec: GridSpec, st: ChangeSettings
-                      ) -> list[tuple[_Obj, _Obj]]:
+def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]], dyn_a: NDArray[np.bool_],
+                      dyn_b: NDArray[np.bool_], spec: GridSpec, st: ChangeSettings) -> list[tuple[_Obj, _Obj]]:
     """Moves of furniture neither session's camera labelled: a piece of A's removed cells and one of
     B's added cells (no objects, each at most ``max_object_m`` long, of lengths within 30 % of each
     other and at most ``max_move_m`` apart) onto which a rigid motion lays at least
-    ``unlabelled_fit`` of each one's cells (four legs on four legs), the best pair first. Their
+    ``unlabelled_fit`` of each one's cells and ``min_fit_legs`` of each one's legs (four legs on four
+    legs: two people's legs fit each other too); of those, the pairs that move least in all. Their
     class is None: an object, of unknown class. A piece whose own cells are a third or more people's
-    (``dyn_a``, ``dyn_b``: a person cleaning left in) is none; a pair with a piece where people were
-    seen (``people``) needs three legs or more on each side: two people's legs fit each other too."""
+    (``dyn_a``, ``dyn_b``: a person cleaning left in) is none."""
     res = spec.resolution
-    tol = 1.6 * res
 
     def usable(cells: NDArray[np.intp], dyn: NDArray[np.bool_]) -> bool:
         return cells.shape[0] >= 3 and float(dyn[cells[:, 0], cells[:, 1]].mean()) < 1.0 / 3.0
 
     ba = [_piece_box(c, spec) if usable(c, dyn_a) else None for c in pieces_a]
     bb = [_piece_box(c, spec) if usable(c, dyn_b) else None for c in pieces_b]
-    near_people_a = [bool(people[c[:, 0], c[:, 1]].any()) for c in pieces_a]
-    near_people_b = [bool(people[c[:, 0], c[:, 1]].any()) for c in pieces_b]
     cands = []
     for i, pa in enumerate(ba):
         if pa is None or pa[1] > st.max_object_m:
@@ -564,18 +575,12 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
                 continue
             if abs(pa[1] - pb[1]) > 0.3 * max(pa[1], pb[1]) + 2 * res:
                 continue
-            if (near_people_a[i] or near_people_b[j]) and (
-                    _legs(pa[0], 1.6 * res).shape[0] < 3 or _legs(pb[0], 1.6 * res).shape[0] < 3):
-                continue
             if float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0))) > st.max_move_m:
                 continue
             turn = _box_turn(pa[3], pb[3])
             turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            motion = _fit_motion(pa[0], pb[0], turns, res)
-            fwd = cKDTree(pb[0]).query(se2_apply(motion, pa[0]))[0] <= tol
-            back = cKDTree(pa[0]).query(se2_apply(se2_inverse(motion), pb[0]))[0] <= tol
-            q = min(float(fwd.mean()), float(back.mean()))
-            if q >= st.unlabelled_fit:
+            q, legs = _shape_fit(pa[0], pb[0], turns, res)
+            if q >= st.unlabelled_fit and legs >= st.min_fit_legs:
                 cands.append((i, j, float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))))
     if not cands:
         return []
@@ -867,13 +872,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             for o in pair:
                 taken[o.cells[:, 0], o.cells[:, 1]] = True
         # Pieces people stood by count too (people's evidence voids a chair-sized piece, and a chair
-        # the camera never saw is one), but only with three legs or more on each side: two people's
-        # legs fit each other as well as a chair's do
+        # the camera never saw is one): the fit needs three legs on three legs, which two people's
+        # legs do not make
         free_a_pieces = [p for p in _pieces(removed_raw & ~_dilate(semi_a, near), group)
                          if not taken[p[:, 0], p[:, 1]].any()]
         free_b_pieces = [p for p in _pieces(added_raw & ~_dilate(semi_b, near), group)
                          if not taken[p[:, 0], p[:, 1]].any()]
-        moved += _unlabelled_moves(free_a_pieces, free_b_pieces, people, lo.dyn_a, lo.dyn_b, spec, st)
+        moved += _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
         # an object of A carried by a candidate motion is contradicted on floor B saw free with no
         # obstacle of B within a cell and a half, and beyond half a metre of anything B saw (behind
         # its walls, out of the building); it is explained on furniture either session saw: cells

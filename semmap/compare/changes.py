@@ -734,14 +734,21 @@ def _thin(piece: NDArray[np.bool_]) -> bool:
     return not ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any()
 
 
-def _hidden_faces(labels: NDArray[np.int32], ids: list[int], other_unseen: NDArray[np.bool_]) -> set[int]:
-    """The pieces (label ids) that are a face the other session only saw edge-on: a strip at most two
-    cells thick with 80 % of its cells within two cells of what the other session never observed
-    (the inside of a pillar it saw two faces of). Its beams grazed along the face, marking the cells
-    on it free at a 5 cm grid; a new wall across floor the other session saw has floor on both sides."""
+def _strips_along(labels: NDArray[np.int32], ids: list[int], near: NDArray[np.bool_], band_cells: float
+                  ) -> set[int]:
+    """The pieces (label ids) at most two cells thick lying, for at least 80 % of their cells, within
+    ``band_cells`` of ``near``. Two uses:
+
+    * the far face of a wall the other session saw from one side only (``near``: its obstacles,
+      within twice the tolerance). Rays grazing along a wall's face mark it free; the wall is there.
+      A door closed in a doorway is not such a strip: most of it is far from the jambs;
+    * a face the other session saw only edge-on (``near``: what it never observed, within two cells:
+      the inside of a pillar it saw two faces of). Its beams grazed along the face, marking the cells
+      on it free at a 5 cm grid; a new wall across floor the other session saw has floor on both sides.
+    """
     if not ids:
         return set()
-    band = _dilate(other_unseen, 2.0)
+    band = _dilate(near, band_cells)
     out = set()
     slices = ndimage.find_objects(labels)
     for k in ids:
@@ -750,29 +757,6 @@ def _hidden_faces(labels: NDArray[np.int32], ids: list[int], other_unseen: NDArr
             continue
         piece = labels[sl] == k
         if _thin(piece) and float(band[sl][piece].mean()) >= 0.8:
-            out.add(k)
-    return out
-
-
-def _wall_faces(labels: NDArray[np.int32], ids: list[int], other_occ: NDArray[np.bool_], band_cells: float
-                ) -> set[int]:
-    """The pieces (label ids) that are the far face of a wall the other session saw from one side only:
-    a strip at most two cells thick lying, for at least 80 % of its cells, within ``band_cells`` (twice
-    the tolerance) of the other session's obstacles. Rays grazing along a wall's face mark it free; the
-    wall is there. A door closed in a doorway is not such a strip: most of it is far from the jambs."""
-    if not ids:
-        return set()
-    band = _dilate(other_occ, band_cells)
-    out = set()
-    slices = ndimage.find_objects(labels)
-    for k in ids:
-        sl = slices[k - 1]
-        if sl is None:
-            continue
-        piece = labels[sl] == k
-        if not _thin(piece):
-            continue  # three cells thick somewhere: a real obstacle
-        if float(band[sl][piece].mean()) >= 0.8:
             out.add(k)
     return out
 
@@ -961,9 +945,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
-        faces = _wall_faces(labels, ids, other_occ, 2.0 * tol)
+        faces = _strips_along(labels, ids, other_occ, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
-        hidden = _hidden_faces(labels, [k for k in ids if k not in faces], ~(other_occ | other_free))
+        hidden = _strips_along(labels, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0)
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]

@@ -313,6 +313,20 @@ def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
     assert mv.class_name == "chair" and mv.displacement_m == pytest.approx(math.hypot(0.2, 2.6), abs=0.05)
 
 
+def test_a_moved_chairs_displacement_is_not_measured_off_a_neighbours_leg_listed_with_it():
+    # both builds listed a leg of the table beside the chair (which stayed) with the chair; the chair
+    # moved 1 m and turned 40 degrees. Its displacement is the chair's own
+    a, b = Room(), Room()
+    a.objects.append(("chair", (5.0, 3.0), (0.45, 0.45), 0.0))
+    b.objects.append(("chair", (5.0, 4.0), (0.45, 0.45), math.radians(40)))
+    for room in (a, b):
+        room.loose_legs.append((4.5, 2.5))
+    r = _diff(a, b)
+    mv = r.of_type("object_moved")
+    assert len(mv) == 1 and mv[0].displacement_m == pytest.approx(1.0, abs=0.05), [m.displacement_m for m in mv]
+    assert np.linalg.norm(_world(mv[0].to_xy) - (5.0, 4.0)) < 0.05
+
+
 def test_a_table_pushed_by_less_than_its_width_is_a_short_move():
     # pushed 40 cm across its 50 cm width: B's back legs stand 4 cm from where A's front legs stood,
     # so neither session's table has changed in the main; each saw floor where the other saw two legs

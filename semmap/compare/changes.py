@@ -908,7 +908,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             box = _box_turn(oa.yaw, ob.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, furniture_a, furniture_b)
-            from_c = _reference_point(src_xy, dst_xy, motion)
+            # cells with an obstacle of the other session where they are (a neighbour that did not
+            # move, grouped with the object) say nothing of where it went; keep three or more
+            keep_a = ~near_b[oa.cells[:, 0], oa.cells[:, 1]]
+            keep_b = ~near_a[ob.cells[:, 0], ob.cells[:, 1]]
+            if keep_a.sum() >= 3 and keep_b.sum() >= 3:
+                from_c = _reference_point(src_xy[keep_a], dst_xy[keep_b], motion)
+            else:
+                from_c = _reference_point(src_xy, dst_xy, motion)
             new_c = se2_apply(motion, from_c[None])[0]
             # a box looks the same turned half way round: the turn is the short one, within ±90°
             turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0

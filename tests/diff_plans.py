@@ -46,6 +46,9 @@ class Room:
         #: faint obstacles
         self.faint_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
+        #: how far off the heading of an object's box in the list is (rad; a box drawn around three legs
+        #: of a table need not follow the table)
+        self.box_yaw_error: dict[int, float] = {}
         #: whether the session knows which object holds each movable cell (a semmap map folder does:
         #: the diff regroups its cells as the build did)
         self.object_layer = True
@@ -114,7 +117,8 @@ class Room:
                 dims = (float(max(hi - lo)), float(min(hi - lo)))
             cm = se2_apply(t_map_world, cw[None])[0]
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
-                                         float(yaw - T_world_map[2]), 16, 5, tuple(map(tuple, fp))))
+                                         float(yaw + self.box_yaw_error.get(k, 0.0) - T_world_map[2]), 16, 5,
+                                         tuple(map(tuple, fp))))
         for _cls, c, size, yaw in self.unlabelled:
             for leg in self.legs(c, size, yaw):
                 mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ)

@@ -327,6 +327,23 @@ def test_a_moved_chairs_displacement_is_not_measured_off_a_neighbours_leg_listed
     assert np.linalg.norm(_world(mv[0].to_xy) - (5.0, 4.0)) < 0.05
 
 
+def test_a_table_turned_is_fitted_leg_pair_on_leg_pair_whatever_heading_its_box_was_given():
+    # A saw three legs of a 1.0 x 0.75 m table and the build drew their box 40 degrees off the table;
+    # B saw all four, the table moved 1.9 m and turned 57 degrees. Two legs as far apart in each
+    # session give the turn; the box's heading does not
+    a, b = Room(), Room()
+    a.objects.append(("dining table", (3.0, 3.0), (1.06, 0.81), 0.3))
+    a.unseen_legs[0] = (2,)
+    a.box_yaw_error[0] = math.radians(40)
+    b.objects.append(("dining table", (4.5, 4.2), (1.06, 0.81), 0.3 + math.radians(57)))
+    r = _diff(a, b)
+    mv = r.of_type("object_moved")
+    assert len(mv) == 1
+    assert mv[0].displacement_m == pytest.approx(math.hypot(1.5, 1.2), abs=0.05)
+    assert np.linalg.norm(_world(mv[0].to_xy) - (4.5, 4.2)) < 0.05
+    assert abs(mv[0].rotation_deg - 57.0) < 3.0
+
+
 def test_a_table_pushed_by_less_than_its_width_is_a_short_move():
     # pushed 40 cm across its 50 cm width: B's back legs stand 4 cm from where A's front legs stood,
     # so neither session's table has changed in the main; each saw floor where the other saw two legs

@@ -322,6 +322,40 @@ def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
     return np.stack([xy[roots == r].mean(axis=0) for r in np.unique(roots)])
 
 
+def _leg_pair_turns(legs_a: NDArray[np.float64], legs_b: NDArray[np.float64], tol: float,
+                    have: tuple[float, ...], most: int = 4) -> tuple[float, ...]:
+    """Turns that lay a pair of A's legs on a pair of B's as far apart (within ``tol``), both ways
+    round, not within 3 degrees of one in ``have``: the object's turn whenever each session saw two of
+    its legs, however its box was drawn. The ``most`` that most pairs agree on."""
+    if legs_a.shape[0] < 2 or legs_b.shape[0] < 2:
+        return ()
+    found: list[float] = []
+    for i in range(legs_a.shape[0]):
+        for j in range(i + 1, legs_a.shape[0]):
+            va = legs_a[j] - legs_a[i]
+            da = float(np.hypot(*va))
+            for k in range(legs_b.shape[0]):
+                for m in range(k + 1, legs_b.shape[0]):
+                    vb = legs_b[m] - legs_b[k]
+                    if da < 2 * tol or abs(float(np.hypot(*vb)) - da) > tol:
+                        continue
+                    t = float(wrap_angle(math.atan2(vb[1], vb[0]) - math.atan2(va[1], va[0])))
+                    found += [t, float(wrap_angle(t + math.pi))]
+    if not found:
+        return ()
+    near = 3.0 * math.pi / 180.0
+    arr = np.array(found)
+    support = [int(np.sum(np.abs(wrap_angle(arr - t)) <= near)) for t in found]
+    out: list[float] = []
+    for k in np.argsort(support)[::-1]:
+        t = found[int(k)]
+        if all(abs(float(wrap_angle(t - h))) > near for h in tuple(have) + tuple(out)):
+            out.append(t)
+        if len(out) >= most:
+            break
+    return tuple(out)
+
+
 def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float,
                 contradicts: Any = None, furniture_a: Any = None, furniture_b: Any = None) -> NDArray[np.float64]:
     """The rigid motion (x, y, yaw) taking an object's cells ``src`` (session A) onto its cells ``dst``
@@ -356,7 +390,7 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
         return (explained_b / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
 
     hyps = []
-    for turn in turns:
+    for turn in tuple(turns) + _leg_pair_turns(legs_a, legs_b, 2.0 * res, turns):
         c, s_ = math.cos(turn), math.sin(turn)
         rot = np.array([[c, -s_], [s_, c]])
         for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b]:

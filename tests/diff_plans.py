@@ -54,6 +54,8 @@ class Room:
         self.object_layer = True
         #: furniture the camera never labelled: its legs are static obstacles, in no object (class unused)
         self.unlabelled: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
+        #: half the width of those legs (0: a single cell each, a table's thin legs)
+        self.unlabelled_leg_half = 0.02
 
     def legs(self, c, size, yaw):
         """The four legs of a box object, world frame."""
@@ -119,9 +121,10 @@ class Room:
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
                                          float(yaw + self.box_yaw_error.get(k, 0.0) - T_world_map[2]), 16, 5,
                                          tuple(map(tuple, fp))))
+        h = self.unlabelled_leg_half
         for _cls, c, size, yaw in self.unlabelled:
             for leg in self.legs(c, size, yaw):
-                mark(leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ)
+                mark(leg + np.array([[dx, dy] for dx in (-h, 0, h) for dy in (-h, 0, h)]), occ)
         for p in self.loose_legs:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ, semi)
         faint = np.zeros(spec.shape, bool)

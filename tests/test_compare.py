@@ -246,6 +246,23 @@ def test_a_couch_pushed_against_a_wall_has_its_wall_side_in_the_change_mask():
     assert back.shape[0] >= 4  # the back legs' cells, labelled couch, within a cell of the wall
 
 
+def test_a_new_table_no_camera_labelled_is_added_though_each_leg_is_one_cell_and_lone_cells_are_not():
+    # B's new table: four thin legs, a cell each, too small one by one to be a change; together,
+    # within a table's span, they are furniture. Two stray cells a metre apart elsewhere are noise
+    a, b = Room(), Room()
+    b.unlabelled.append(("dining table", (5.0, 4.0), (1.2, 0.8), 0.3))
+    b.unlabelled_leg_half = 0.0
+    b.loose_legs.clear()
+    for p in ((2.0, 6.0), (3.0, 6.2)):
+        b.walls.append((p[0], p[1], p[0], p[1]))
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1, r.counts()
+    added = _mask_world(r, 1)
+    legs = Room().legs((5.0, 4.0), (1.2, 0.8), 0.3)
+    assert all(np.min(np.linalg.norm(added - leg, axis=1)) < 0.05 for leg in legs)
+    assert not np.any(np.linalg.norm(added - (2.0, 6.0), axis=1) < 0.3)
+
+
 def test_a_new_cabinet_against_a_wall_has_its_side_faces_in_the_mask_up_to_the_wall():
     # B's new cabinet (static: no camera class) stands against the north wall; A saw the floor free up
     # to the wall. Its side faces' last cells lie within the tolerance of the wall, and are the cabinet

@@ -85,8 +85,10 @@ class ChangeSettings:
     #: other for at least ``unlabelled_fit`` of their cells, are an object that moved (class unknown)
     max_object_m: float = 2.5
     unlabelled_fit: float = 0.7
-    #: ... and as many legs of each on the other's at least (one or two legs fit any blob)
+    #: ... and as many legs of each on the other's at least (one or two legs fit any blob). So many
+    #: obstacles, each too small for a change, within ``leg_span_m`` of each other are furniture
     min_fit_legs: int = 3
+    leg_span_m: float = 1.3
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -181,8 +183,22 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
     yb = sn * xs[None, :] + cs * ys[:, None] + t_b_a[1]
     map_x = ((xb - sb.origin_x) / sb.resolution - 0.5).astype(np.float32)
     map_y = ((yb - sb.origin_y) / sb.resolution - 0.5).astype(np.float32)
-    code_b = np.asarray(cv2.remap(_code(b), map_x, map_y, interpolation=cv2.INTER_NEAREST,
+    raw_b = _code(b)
+    code_b = np.asarray(cv2.remap(raw_b, map_x, map_y, interpolation=cv2.INTER_NEAREST,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0), np.uint8)
+    # sampling a turned grid at A's cell centres skips some of B's cells: a thin leg that is one cell
+    # would vanish. B's obstacle cells are also carried forward into the cell their centre falls in
+    solid = _OCC | _SEMI | _DYN | _FAINT
+    rows_b, cols_b = np.nonzero(raw_b & solid)
+    if rows_b.size:
+        xy = se2_apply(T_a_b, np.stack([sb.origin_x + (cols_b + 0.5) * sb.resolution,
+                                        sb.origin_y + (rows_b + 0.5) * sb.resolution], axis=1))
+        c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
+        r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
+        ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
+        bits_b = (raw_b[rows_b, cols_b] & solid)[ok]
+        np.bitwise_or.at(code_b, (r[ok], c[ok]), bits_b)
+        code_b[r[ok], c[ok]] &= ~np.uint8(_FREE)
 
     def bits(code: NDArray[np.uint8], bit: int) -> NDArray[np.bool_]:
         return (code & bit) > 0
@@ -727,6 +743,24 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
     return out, kept, lab, [int(k) for k in keep_ids]
 
 
+def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int
+              ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
+    """Of ``cells`` (pieces each too small to be a change), the groups joined within ``span_cells``
+    that hold ``min_legs`` separate blobs or more, as :func:`_component_changes` gives them."""
+    found, kept, lab, ids = _component_changes(cells, spec, kind, span_cells, 1)
+    slices = ndimage.find_objects(lab)
+    keep = []
+    for n, k in enumerate(ids):
+        sl = slices[k - 1]
+        if sl is not None and ndimage.label(lab[sl] == k, structure=np.ones((3, 3), bool))[1] >= min_legs:
+            keep.append(n)
+    if len(keep) == len(ids):
+        return found, kept, lab, ids
+    drop = [ids[n] for n in range(len(ids)) if n not in keep]
+    lab = np.where(np.isin(lab, drop), 0, lab).astype(np.int32)
+    return [found[n] for n in keep], kept & (lab > 0), lab, [ids[n] for n in keep]
+
+
 def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people: NDArray[np.bool_],
                  st: ChangeSettings, res: float) -> NDArray[np.bool_]:
     """``changed`` less the cells in ``zone`` (near where people were seen) of the pieces that may be
@@ -985,6 +1019,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             ("static_added", added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a),
             ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
+        # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
+        # when three or more stand within a table's span of each other: furniture, not noise
+        f2, k2, l2, i2 = _leg_sets(cells & ~kept, spec, kind, st.leg_span_m / res, st.min_fit_legs)
+        if i2:
+            off = int(labels.max())
+            labels = np.where(l2 > 0, l2 + off, labels).astype(np.int32)
+            found, ids, kept = found + f2, ids + [i + off for i in i2], kept | k2
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
         faces = _strips_along(labels, ids, other_occ, 2.0 * tol)
         left_out["wall_faces"] += len(faces)

@@ -729,36 +729,69 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
     counts = np.bincount(lab.ravel(), minlength=n + 1)
     keep_ids = np.flatnonzero(counts >= min_cells)
     keep_ids = keep_ids[keep_ids > 0]
-    kept = np.isin(lab, keep_ids)
+    table = np.zeros(n + 1, bool)
+    table[keep_ids] = True
+    kept = table[lab]
     out = []
     if keep_ids.size:
         rows, cols = np.nonzero(kept)
         ids = lab[rows, cols]
         area = spec.resolution ** 2
+        sum_r = np.bincount(ids, weights=rows, minlength=n + 1)
+        sum_c = np.bincount(ids, weights=cols, minlength=n + 1)
         for k in keep_ids:
-            sel = ids == k
-            cx = spec.origin_x + (cols[sel].mean() + 0.5) * spec.resolution
-            cy = spec.origin_y + (rows[sel].mean() + 0.5) * spec.resolution
-            out.append(Change(kind, (float(cx), float(cy)), float(sel.sum() * area), int(sel.sum())))
+            m = int(counts[k])
+            cx = spec.origin_x + (sum_c[k] / m + 0.5) * spec.resolution
+            cy = spec.origin_y + (sum_r[k] / m + 0.5) * spec.resolution
+            out.append(Change(kind, (float(cx), float(cy)), float(m * area), m))
     return out, kept, lab, [int(k) for k in keep_ids]
 
 
 def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int
               ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
-    """Of ``cells`` (pieces each too small to be a change), the groups joined within ``span_cells``
-    that hold ``min_legs`` separate blobs or more, as :func:`_component_changes` gives them."""
-    found, kept, lab, ids = _component_changes(cells, spec, kind, span_cells, 1)
-    slices = ndimage.find_objects(lab)
-    keep = []
-    for n, k in enumerate(ids):
-        sl = slices[k - 1]
-        if sl is not None and ndimage.label(lab[sl] == k, structure=np.ones((3, 3), bool))[1] >= min_legs:
-            keep.append(n)
-    if len(keep) == len(ids):
-        return found, kept, lab, ids
-    drop = [ids[n] for n in range(len(ids)) if n not in keep]
-    lab = np.where(np.isin(lab, drop), 0, lab).astype(np.int32)
-    return [found[n] for n in keep], kept & (lab > 0), lab, [ids[n] for n in keep]
+    """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
+    whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces."""
+    none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
+        [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
+    blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+    if n < min_legs:
+        return none
+    rr, cc = np.nonzero(blobs)
+    ids = blobs[rr, cc]
+    count = np.bincount(ids, minlength=n + 1)[1:].astype(np.float64)
+    centres = np.stack([np.bincount(ids, weights=rr, minlength=n + 1)[1:] / count,
+                        np.bincount(ids, weights=cc, minlength=n + 1)[1:] / count], axis=1)
+    parent = np.arange(n)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    for i, j in cKDTree(centres).query_pairs(span_cells):
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[ri] = rj
+    roots = np.array([root(i) for i in range(n)])
+    big = [r for r, c in zip(*np.unique(roots, return_counts=True), strict=True) if c >= min_legs]
+    if not big:
+        return none
+    group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
+    for k, r in enumerate(big, start=1):
+        group[1:][roots == r] = k
+    lab = group[blobs]
+    out = []
+    area = spec.resolution ** 2
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        rows, cols = np.nonzero(lab[sl] == k)
+        rows, cols = rows + sl[0].start, cols + sl[1].start
+        out.append(Change(kind, (float(spec.origin_x + (cols.mean() + 0.5) * spec.resolution),
+                                 float(spec.origin_y + (rows.mean() + 0.5) * spec.resolution)),
+                          float(rows.size * area), int(rows.size)))
+    return out, lab > 0, lab, list(range(1, len(big) + 1))
 
 
 def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people: NDArray[np.bool_],

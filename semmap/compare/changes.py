@@ -32,6 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..geometry import dilate_mask, disk_kernel, se2_apply, se2_inverse, wrap_angle
@@ -319,22 +321,16 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj]) -> list[_Obj]
     return out
 
 
+def _clusters(xy: NDArray[np.float64], link: float) -> NDArray[np.intp]:
+    """Per point, its cluster: points joined through neighbours closer than ``link``."""
+    pairs = cKDTree(xy).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(pairs.shape[0]), (pairs[:, 0], pairs[:, 1])), shape=(xy.shape[0],) * 2)
+    return np.asarray(connected_components(graph, directed=False)[1], np.intp)
+
+
 def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
     """Centres of the groups of points (cells) closer than ``link`` to each other: an object's legs."""
-    n = xy.shape[0]
-    parent = np.arange(n)
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = int(parent[i])
-        return i
-
-    for i, j in cKDTree(xy).query_pairs(link):
-        ri, rj = root(i), root(j)
-        if ri != rj:
-            parent[ri] = rj
-    roots = np.array([root(i) for i in range(n)])
+    roots = _clusters(xy, link)
     return np.stack([xy[roots == r].mean(axis=0) for r in np.unique(roots)])
 
 
@@ -761,19 +757,7 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
     count = np.bincount(ids, minlength=n + 1)[1:].astype(np.float64)
     centres = np.stack([np.bincount(ids, weights=rr, minlength=n + 1)[1:] / count,
                         np.bincount(ids, weights=cc, minlength=n + 1)[1:] / count], axis=1)
-    parent = np.arange(n)
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = int(parent[i])
-        return i
-
-    for i, j in cKDTree(centres).query_pairs(span_cells):
-        ri, rj = root(i), root(j)
-        if ri != rj:
-            parent[ri] = rj
-    roots = np.array([root(i) for i in range(n)])
+    roots = _clusters(centres, span_cells)
     big = [r for r, c in zip(*np.unique(roots, return_counts=True), strict=True) if c >= min_legs]
     if not big:
         return none

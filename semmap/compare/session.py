@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from ..config import CleaningConfig
 from ..errors import ConfigError, MapFolderError, SemmapError
@@ -103,8 +104,6 @@ def _surface_gaps(occupied: NDArray[np.bool_]) -> NDArray[np.bool_]:
 def _lines(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """The pieces of ``cells`` (8-connected) one cell thick (no 2 x 2 block) and three cells long or
     more: a face carved by beams grazing it, not a person's leg (two or three cells across)."""
-    from scipy import ndimage
-
     lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
     if n == 0:
         return np.zeros_like(cells)

@@ -20,7 +20,6 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..geometry import se2_apply, wrap_angle
@@ -91,15 +90,10 @@ def _carried(o: SemiStaticObject, c: Change) -> SemiStaticObject:
     """A's object ``o`` moved as ``c`` says: turned by its rotation about where it was, then shifted."""
     assert c.from_xy is not None and c.to_xy is not None
     turn = math.radians(c.rotation_deg or 0.0)
-    cs, sn = math.cos(turn), math.sin(turn)
     f, t = np.asarray(c.from_xy, np.float64), np.asarray(c.to_xy, np.float64)
-
-    def move(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        q = p - f
-        return np.stack([cs * q[:, 0] - sn * q[:, 1], sn * q[:, 0] + cs * q[:, 1]], axis=1) + t
-
-    cen = move(np.array([o.centroid], np.float64))[0]
-    fp = move(np.asarray(o.footprint, np.float64).reshape(-1, 2)) if o.footprint else np.zeros((0, 2))
+    motion = np.array([*(t - se2_apply(np.array([0.0, 0.0, turn]), f[None])[0]), turn])
+    cen = se2_apply(motion, np.array([o.centroid], np.float64))[0]
+    fp = se2_apply(motion, np.asarray(o.footprint, np.float64).reshape(-1, 2)) if o.footprint else np.zeros((0, 2))
     return SemiStaticObject(o.class_name, (round(float(cen[0]), 3), round(float(cen[1]), 3)), o.size,
                             float(wrap_angle(o.yaw + turn)), o.n_cells, o.views,
                             tuple((round(float(x), 3), round(float(y), 3)) for x, y in fp))

@@ -70,7 +70,7 @@ from ..records import REGION_BASE, GridSpec, Mobility
 from .fusion import GridLayers
 
 __all__ = ["CleanedMap", "SemiStaticObject", "clean", "crop_to_observed", "evidence_occupancy", "group_cells",
-           "group_objects", "nearest_value", "semi_cell_classes"]
+           "group_objects", "nearest_value"]
 
 log = logging.getLogger(__name__)
 

@@ -504,19 +504,16 @@ def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], ad
     return out
 
 
-def _pieces(changed: NDArray[np.bool_], group_cells: float) -> list[NDArray[np.intp]]:
-    """The cells (n, 2) row, col of each connected piece of ``changed`` (cells up to ``group_cells``
-    apart join: the legs of a table are one piece)."""
-    if not changed.any():
-        return []
-    lab, _ = ndimage.label(_dilate(changed, group_cells / 2.0), structure=np.ones((3, 3), bool))
-    lab = np.where(changed, lab, 0)
+def _pieces(changed: NDArray[np.bool_], spec: GridSpec, group_cells: float) -> list[NDArray[np.intp]]:
+    """The cells (n, 2) row, col of each piece of ``changed`` as :func:`_component_changes` joins them
+    (cells up to ``group_cells`` apart: the legs of a table are one piece)."""
+    _, _, lab, ids = _component_changes(changed, spec, "", group_cells, 1)
     out = []
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        if sl is None:
-            continue
-        r, c = np.nonzero(lab[sl] == k)
-        if r.size:
+    slices = ndimage.find_objects(lab)
+    for k in ids:
+        sl = slices[k - 1]
+        if sl is not None:
+            r, c = np.nonzero(lab[sl] == k)
             out.append(np.stack([r + sl[0].start, c + sl[1].start], axis=1).astype(np.intp))
     return out
 
@@ -929,7 +926,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         group = st.group_m / res
         for objs_idx, objs_all, changed, in_a in ((only_a, gone, added & ~_dilate(semi_b, near), True),
                                                   (only_b, new, removed & ~_dilate(semi_a, near), False)):
-            partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, group), spec, st, in_a)
+            partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, spec, group), spec,
+                                            st, in_a)
             moved += partners
             done = {id(p[0] if in_a else p[1]) for p in partners}
             objs_idx[:] = [i for i in objs_idx if id(objs_all[i]) not in done]
@@ -943,9 +941,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # Pieces people stood by count too (people's evidence voids a chair-sized piece, and a chair
         # the camera never saw is one): the fit needs three legs on three legs, which two people's
         # legs do not make
-        free_a_pieces = [p for p in _pieces(removed_raw & ~_dilate(semi_a, near), group)
+        free_a_pieces = [p for p in _pieces(removed_raw & ~_dilate(semi_a, near), spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
-        free_b_pieces = [p for p in _pieces(added_raw & ~_dilate(semi_b, near), group)
+        free_b_pieces = [p for p in _pieces(added_raw & ~_dilate(semi_b, near), spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
         moved += _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
         # an object of A carried by a candidate motion is contradicted on floor B saw free with no

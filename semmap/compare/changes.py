@@ -924,8 +924,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # robot's path, out of the camera's view): a piece of the other session's changes that is no
         # object, of its size, onto which its cells fit
         group = st.group_m / res
-        for objs_idx, objs_all, changed, in_a in ((only_a, gone, added & ~_dilate(semi_b, near), True),
-                                                  (only_b, new, removed & ~_dilate(semi_a, near), False)):
+        off_semi_a, off_semi_b = ~_dilate(semi_a, near), ~_dilate(semi_b, near)
+        for objs_idx, objs_all, changed, in_a in ((only_a, gone, added & off_semi_b, True),
+                                                  (only_b, new, removed & off_semi_a, False)):
+            if not objs_idx:
+                continue
             partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, spec, group), spec,
                                             st, in_a)
             moved += partners
@@ -941,9 +944,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # Pieces people stood by count too (people's evidence voids a chair-sized piece, and a chair
         # the camera never saw is one): the fit needs three legs on three legs, which two people's
         # legs do not make
-        free_a_pieces = [p for p in _pieces(removed_raw & ~_dilate(semi_a, near), spec, group)
+        free_a_pieces = [p for p in _pieces(removed_raw & off_semi_a, spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
-        free_b_pieces = [p for p in _pieces(added_raw & ~_dilate(semi_b, near), spec, group)
+        free_b_pieces = [p for p in _pieces(added_raw & off_semi_b, spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
         moved += _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
         # an object of A carried by a candidate motion is contradicted on floor B saw free with no

@@ -8,12 +8,13 @@ matching", ICRA 2009; Cartographer's branch-and-bound search rests on the same s
 1. **Every heading, coarse.** A's obstacles become a likelihood field (a Gaussian of the
    distance to the nearest obstacle) on a coarse grid (20 cm, coarser for big maps). For each
    heading in 2° steps, B's obstacle points, turned, are rasterised and cross-correlated with the
-   field by FFT: every translation is scored at once.
+   field by FFT: every translation is scored at once. The raster turned half way round is the
+   raster flipped, so one forward transform serves two headings.
 2. **The best few, finer.** The best distinct peaks (more than 6° or 1.5 m apart) are searched
    again in a small window on a field at twice the map's resolution.
 3. **Full resolution.** A robust ICP (point to point, the inlier distance shrinking from 30 cm to
-   1.5 cells) takes each to convergence; moved furniture and new walls fall outside the inlier
-   distance and pull nothing.
+   1.5 cells) takes each that scored at least half the best in its window to convergence; moved
+   furniture and new walls fall outside the inlier distance and pull nothing.
 4. **Which one, and how sure.** Candidates within 5° and 1 m are one fit. Each is scored by the
    B points (walls and furniture, where A observed) within 1.5 cells of A's; the fit with the most
    wins, and within a fit the pose with the best soft count. ``ambiguity`` compares the winner with
@@ -141,22 +142,35 @@ def _coarse(pa: NDArray[np.float64], pb: NDArray[np.float64], res: float, step_d
     reach = int(math.ceil(2.0 * float(np.linalg.norm(centred, axis=1).max()) / res)) + 2
     size = (sp_fft.next_fast_len(shape[0] + reach, real=True), sp_fft.next_fast_len(shape[1] + reach, real=True))
     f_field = sp_fft.rfft2(field, size, workers=-1)
+    # B's raster turned half way round is its raster flipped, whose transform is the conjugate times a
+    # phase: every forward transform serves two headings, 180° apart
     out = []
-    for deg in np.arange(-180.0, 180.0, step_deg):
+    for deg in np.arange(-180.0, 0.0, step_deg):
         th = math.radians(float(deg))
         q = centred @ _rot(th).T
         qmin = q.min(axis=0)
         ij = np.floor((q - qmin) / res).astype(np.int64)
-        img = np.zeros((int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1), np.float32)
+        hb, wb = int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1
+        img = np.zeros((hb, wb), np.float32)
         np.add.at(img, (ij[:, 1], ij[:, 0]), 1.0)
-        # full correlation: index j <-> shift j - (hb - 1) of B's raster against A's field
-        corr = sp_fft.irfft2(f_field * sp_fft.rfft2(img[::-1, ::-1], size, workers=-1), size, workers=-1)
-        k = int(np.argmax(corr))
-        r, c = divmod(k, corr.shape[1])
-        shift = np.array([c - (img.shape[1] - 1), r - (img.shape[0] - 1)], np.float64)
-        # B's raster cell u holds q in [qmin + u res, ...); it lands on A's cell u + shift
-        t = lo + shift * res - qmin
-        out.append((float(corr[r, c]), th, t - _rot(th) @ cb))
+        f_img = sp_fft.rfft2(img, size, workers=-1)
+        # the flipped raster's transform: exp(-2πi (k (h - 1) / P + l (w - 1) / Q)) conj(F)
+        phase = np.outer(np.exp(-2j * np.pi * np.arange(size[0]) * (hb - 1) / size[0]),
+                         np.exp(-2j * np.pi * np.arange(f_img.shape[1]) * (wb - 1) / size[1])).astype(np.complex64)
+        f_flip = phase * np.conj(f_img)
+        # heading th: B's raster correlated with A's field (the transform of the flipped raster);
+        # th + 180°: the flipped raster is B's raster at that heading, its cells from -qmax on
+        for t_deg, f_corr, origin in ((deg, f_flip, qmin),
+                                      (deg + 180.0, f_img, -qmin - np.array([wb, hb], np.float64) * res)):
+            corr = sp_fft.irfft2(f_field * f_corr, size, workers=-1)
+            k = int(np.argmax(corr))
+            r, c = divmod(k, corr.shape[1])
+            # full correlation: index j <-> shift j - (hb - 1) of B's raster against A's field; B's
+            # raster cell u holds points from origin + u res, and lands on A's cell u + shift
+            shift = np.array([c - (wb - 1), r - (hb - 1)], np.float64)
+            t_th = math.radians(float(t_deg))
+            t = lo + shift * res - origin
+            out.append((float(corr[r, c]), t_th, t - _rot(t_th) @ cb))
     return out
 
 
@@ -174,35 +188,49 @@ def _distinct(cands: list[tuple[float, float, NDArray[np.float64]]], k: int, deg
 
 def _refine_window(pose: NDArray[np.float64], pb: NDArray[np.float64], field: NDArray[np.float32],
                    origin: NDArray[np.float64], res: float, half_deg: float, half_m: float
-                   ) -> NDArray[np.float64]:
-    """Brute force around ``pose`` on a fine field: headings in 0.5° steps, shifts in field cells."""
+                   ) -> tuple[NDArray[np.float64], float]:
+    """Brute force around ``pose`` on a fine field: headings in 0.5° steps, shifts in whole field
+    cells; the best pose and its score (the field summed over the points). A shift by whole cells
+    moves every point's cell by the same offset, so each heading is one gather of the field around
+    the points' cells."""
+    n = max(1, int(round(half_m / res)))
+    fp = np.pad(field, n)  # zeros beyond the field: no point is scored off its edge
+    h, w = fp.shape
+    k = np.arange(-n, n + 1)
+    dy, dx = np.meshgrid(k, k, indexing="ij")
+    offs = (dy * w + dx).ravel()
+    flat_field = fp.ravel()
     best, best_s = pose, -1.0
-    steps = np.arange(-half_m, half_m + 1e-9, res)
-    dx, dy = np.meshgrid(steps, steps)
-    offs = np.stack([dx.ravel(), dy.ravel()], axis=1)
     for d in np.arange(-half_deg, half_deg + 1e-9, 0.5):
         th = float(pose[2]) + math.radians(float(d))
         q = pb @ _rot(th).T + pose[:2]
-        s = _lookup(field, origin, res, q[None, :, :] + offs[:, None, :]).sum(axis=1)
-        k = int(np.argmax(s))
-        if s[k] > best_s:
-            best_s = float(s[k])
-            best = np.array([pose[0] + offs[k, 0], pose[1] + offs[k, 1], th])
-    return best
+        ij = np.floor((q - origin) / res).astype(np.int64) + n
+        ok = (ij[:, 0] >= n) & (ij[:, 0] < w - n) & (ij[:, 1] >= n) & (ij[:, 1] < h - n)
+        flat = ij[ok, 1] * w + ij[ok, 0]
+        s = flat_field[flat[:, None] + offs[None, :]].sum(axis=0)
+        j = int(np.argmax(s))
+        if s[j] > best_s:
+            best_s = float(s[j])
+            best = np.array([pose[0] + dx.ravel()[j] * res, pose[1] + dy.ravel()[j] * res, th])
+    return best, best_s
 
 
 def _icp(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, pa: NDArray[np.float64],
-         res: float) -> NDArray[np.float64]:
-    """Trimmed point-to-point ICP, the inlier distance shrinking to 1.5 cells."""
-    for max_d in (0.3, 0.15, 3.0 * res, 1.5 * res):
+         res: float, sub: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Trimmed point-to-point ICP, the inlier distance shrinking to 1.5 cells. The wide stages only
+    bring the pose near (on ``sub``, a subset of the points, if given, and to a millimetre); the
+    last takes it to convergence on every point."""
+    stages = ((0.3, 1e-3, 1e-4), (0.15, 1e-3, 1e-4), (3.0 * res, 1e-3, 1e-4), (1.5 * res, 1e-4, 1e-5))
+    for k, (max_d, tol_m, tol_rad) in enumerate(stages):
+        pts = sub if sub is not None and k < 2 else pb
         for _ in range(15):
-            q = se2_apply(pose, pb)
+            q = se2_apply(pose, pts)
             d, j = tree.query(q, distance_upper_bound=max_d)
             ok = np.isfinite(d)
             if ok.sum() < 10:
                 return pose
-            new = align_se2(pb[ok], pa[j[ok]])
-            done = np.linalg.norm(new[:2] - pose[:2]) < 1e-4 and abs(float(wrap_angle(new[2] - pose[2]))) < 1e-5
+            new = align_se2(pts[ok], pa[j[ok]])
+            done = np.linalg.norm(new[:2] - pose[:2]) < tol_m and abs(float(wrap_angle(new[2] - pose[2]))) < tol_rad
             pose = new
             if done:
                 break
@@ -253,7 +281,7 @@ def _inliers(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, 
     """B's points that land within ``tol`` of A's points, in A's observed area, under ``pose``; and
     their soft count (each weighted by exp(-d² / 2σ²), σ half a cell)."""
     q = se2_apply(pose, pb)
-    d, _ = tree.query(q, distance_upper_bound=tol)
+    d, _ = tree.query(q, distance_upper_bound=tol, workers=-1)
     ok = np.isfinite(d) & _inside(a.spec, seen_a, q)
     sigma = 0.5 * a.spec.resolution
     return ok, float(np.exp(-0.5 * (d[ok] / sigma) ** 2).sum())
@@ -265,7 +293,7 @@ def _score(pose: NDArray[np.float64], pb: NDArray[np.float64], tree: cKDTree, a:
     q = se2_apply(pose, pb)
     # B's walls that land where A observed (or within a cell of A's walls) can be checked
     checkable = _inside(a.spec, seen_a, q)
-    d, _ = tree.query(q)
+    d, _ = tree.query(q, distance_upper_bound=tol * (1.0 + 1e-9), workers=-1)  # inf beyond: not an inlier
     inl = (d <= tol) & checkable
     n = int(checkable.sum())
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else math.inf
@@ -298,11 +326,12 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     tree = cKDTree(pa)
     seen_a = _observed_mask(a) | (cv2.dilate(a.occupied.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
     sub = pb[:: max(1, len(pb) // 1500)]
-    refined = []
-    for _, th, t in top:
-        pose = np.array([t[0], t[1], th])
-        pose = _refine_window(pose, sub, ffield, lo, fine_res, half_deg=2.5, half_m=1.5 * coarse_res)
-        refined.append(_icp(pose, pb, tree, pa, res))
+    windowed = [_refine_window(np.array([t[0], t[1], th]), sub, ffield, lo, fine_res, half_deg=2.5,
+                               half_m=1.5 * coarse_res) for _, th, t in top]
+    # ICP only where the fit can compete: one that explains less than half what the best explains
+    # on the field is kept at its window pose (it still counts towards the ambiguity)
+    best_window = max(s for _, s in windowed)
+    refined = [_icp(pose, pb, tree, pa, res, sub) if s >= 0.5 * best_window else pose for pose, s in windowed]
     # which candidate: structure and furniture together, and only the points on which two fits
     # disagree count (a ward of identical rooms matches its walls turned half way round as well as
     # straight; the few things that differ decide)
@@ -343,9 +372,11 @@ def align_maps(a: AlignInput, b: AlignInput, *, min_overlap: float = 0.25, min_i
     best = _polish(best, pb, full, lo, res)
     # final score on every wall point of B
     frac, _, rms = _score(best, pb_all, tree, a, seen_a, 1.5 * res)
-    obs_b = np.argwhere(_observed_mask(b))[:: max(1, int(_observed_mask(b).sum()) // 20000)]
-    pts_b = np.stack([b.spec.origin_x + (obs_b[:, 1] + 0.5) * b.spec.resolution,
-                      b.spec.origin_y + (obs_b[:, 0] + 0.5) * b.spec.resolution], axis=1)
+    obs_flat = np.flatnonzero(_observed_mask(b))
+    obs_flat = obs_flat[:: max(1, obs_flat.size // 20000)]
+    obs_r, obs_c = np.divmod(obs_flat, b.spec.width)
+    pts_b = np.stack([b.spec.origin_x + (obs_c + 0.5) * b.spec.resolution,
+                      b.spec.origin_y + (obs_r + 0.5) * b.spec.resolution], axis=1)
     overlap = float(_inside(a.spec, _observed_mask(a), se2_apply(best, pts_b)).mean()) if len(pts_b) else 0.0
     best = np.array([best[0], best[1], float(wrap_angle(best[2]))])
     result = Alignment(best, rms if math.isfinite(rms) else 0.0, frac, overlap, ambiguity, time.perf_counter() - t0)

@@ -181,10 +181,11 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
     ys = spec.origin_y + (np.arange(spec.height, dtype=np.float64) + 0.5) * res
     t_b_a = se2_inverse(T_a_b)
     cs, sn = math.cos(float(t_b_a[2])), math.sin(float(t_b_a[2]))
-    xb = cs * xs[None, :] - sn * ys[:, None] + t_b_a[0]
-    yb = sn * xs[None, :] + cs * ys[:, None] + t_b_a[1]
-    map_x = ((xb - sb.origin_x) / sb.resolution - 0.5).astype(np.float32)
-    map_y = ((yb - sb.origin_y) / sb.resolution - 0.5).astype(np.float32)
+    # B's (fractional) column and row of each: a sum of a term per column and a term per row
+    map_x = np.add.outer((-sn * ys) / sb.resolution,
+                         (cs * xs + t_b_a[0] - sb.origin_x) / sb.resolution - 0.5).astype(np.float32)
+    map_y = np.add.outer((cs * ys) / sb.resolution,
+                         (sn * xs + t_b_a[1] - sb.origin_y) / sb.resolution - 0.5).astype(np.float32)
     raw_b = _code(b)
     code_b = np.asarray(cv2.remap(raw_b, map_x, map_y, interpolation=cv2.INTER_NEAREST,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0), np.uint8)
@@ -717,18 +718,20 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
     if not mask.any():
         return [], np.zeros_like(mask), np.zeros(mask.shape, np.int32), []
     joined = _dilate(mask, group_cells / 2.0)
-    lab, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
-    lab = np.where(mask, lab, 0).astype(np.int32)
-    counts = np.bincount(lab.ravel(), minlength=n + 1)
+    lab_joined, n = ndimage.label(joined, structure=np.ones((3, 3), bool))
+    # the grid is large and the changes few: work on the changed cells only
+    rows, cols = np.nonzero(mask)
+    ids = lab_joined[rows, cols]
+    counts = np.bincount(ids, minlength=n + 1)
     keep_ids = np.flatnonzero(counts >= min_cells)
     keep_ids = keep_ids[keep_ids > 0]
-    table = np.zeros(n + 1, bool)
-    table[keep_ids] = True
-    kept = table[lab]
+    lab = np.zeros(mask.shape, np.int32)
+    lab[rows, cols] = ids
+    keep = counts[ids] >= min_cells
+    kept = np.zeros_like(mask)
+    kept[rows[keep], cols[keep]] = True
     out = []
     if keep_ids.size:
-        rows, cols = np.nonzero(kept)
-        ids = lab[rows, cols]
         area = spec.resolution ** 2
         sum_r = np.bincount(ids, weights=rows, minlength=n + 1)
         sum_c = np.bincount(ids, weights=cols, minlength=n + 1)
@@ -761,18 +764,18 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
     for k, r in enumerate(big, start=1):
         group[1:][roots == r] = k
-    lab = group[blobs]
-    out = []
+    sets = group[ids]
+    lab = np.zeros(cells.shape, np.int32)
+    lab[rr, cc] = sets
+    m = len(big) + 1
+    size = np.bincount(sets, minlength=m)
+    sum_r = np.bincount(sets, weights=rr, minlength=m)
+    sum_c = np.bincount(sets, weights=cc, minlength=m)
     area = spec.resolution ** 2
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        if sl is None:
-            continue
-        rows, cols = np.nonzero(lab[sl] == k)
-        rows, cols = rows + sl[0].start, cols + sl[1].start
-        out.append(Change(kind, (float(spec.origin_x + (cols.mean() + 0.5) * spec.resolution),
-                                 float(spec.origin_y + (rows.mean() + 0.5) * spec.resolution)),
-                          float(rows.size * area), int(rows.size)))
-    return out, lab > 0, lab, list(range(1, len(big) + 1))
+    out = [Change(kind, (float(spec.origin_x + (sum_c[k] / size[k] + 0.5) * spec.resolution),
+                         float(spec.origin_y + (sum_r[k] / size[k] + 0.5) * spec.resolution)),
+                  float(size[k] * area), int(size[k])) for k in range(1, m)]
+    return out, lab > 0, lab, list(range(1, m))
 
 
 def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people: NDArray[np.bool_],
@@ -816,8 +819,8 @@ def _thin(piece: NDArray[np.bool_]) -> bool:
     return not ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any()
 
 
-def _strips_along(labels: NDArray[np.int32], ids: list[int], near: NDArray[np.bool_], band_cells: float
-                  ) -> set[int]:
+def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | None], ids: list[int],
+                  near: NDArray[np.bool_], band_cells: float) -> set[int]:
     """The pieces (label ids) at most two cells thick lying, for at least 80 % of their cells, within
     ``band_cells`` of ``near``. Two uses:
 
@@ -830,15 +833,20 @@ def _strips_along(labels: NDArray[np.int32], ids: list[int], near: NDArray[np.bo
     """
     if not ids:
         return set()
-    band = _dilate(near, band_cells)
     out = set()
-    slices = ndimage.find_objects(labels)
+    m = int(math.ceil(band_cells)) + 1  # the band around a piece, from ``near`` this far around it
+    h, w = labels.shape
     for k in ids:
         sl = slices[k - 1]
         if sl is None:
             continue
         piece = labels[sl] == k
-        if _thin(piece) and float(band[sl][piece].mean()) >= 0.8:
+        if not _thin(piece):
+            continue
+        r0, c0 = max(0, sl[0].start - m), max(0, sl[1].start - m)
+        around = _dilate(near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)], band_cells)
+        band = around[sl[0].start - r0:sl[0].stop - r0, sl[1].start - c0:sl[1].stop - c0]
+        if float(band[piece].mean()) >= 0.8:
             out.add(k)
     return out
 
@@ -1042,19 +1050,23 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         f2, k2, l2, i2 = _leg_sets(cells & ~kept, spec, kind, st.leg_span_m / res, st.min_fit_legs)
         if i2:
             off = int(labels.max())
-            labels = np.where(l2 > 0, l2 + off, labels).astype(np.int32)
+            on_sets = l2 > 0
+            labels[on_sets] = l2[on_sets] + off
             found, ids, kept = found + f2, ids + [i + off for i in i2], kept | k2
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
-        faces = _strips_along(labels, ids, other_occ, 2.0 * tol)
+        slices = ndimage.find_objects(labels)
+        faces = _strips_along(labels, slices, ids, other_occ, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
-        hidden = _strips_along(labels, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0)
+        hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0)
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
         # a change reaches on, through its own obstacle cells the other session saw free, up to the
         # tolerance into the band by the other's obstacles: the end of a cabinet's face where it meets
         # the wall it stands against
-        shown = kept & ~np.isin(labels, list(faces))
+        is_face = np.zeros(len(slices) + 1, bool)
+        is_face[list(faces)] = True
+        shown = kept & ~is_face[labels]
         reach = own_occ & other_free & ~on_objects & ~people & (mask == 0)
         for _ in range(int(math.ceil(tol))):
             shown |= _dilate(shown, 1.5) & reach

@@ -203,6 +203,10 @@ def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a
     dropped[9, 2:12] = True  # a line of a face one cell thick, carved whole
     dropped[14:17, 14:17] = True  # a leg of a person who walked away: three cells across
     dropped[12, 3] = True  # a lone cell: may be a person
+    occ[1, 2:12] = True  # another face, with beam ends scattered a cell off it, seen through now and then
+    dropped[0, [3, 6, 7]] = True
+    occ[18, 2:12] = True  # a third face, with a person's leg (three cells across) dropped right beside it
+    dropped[15:18, 5:8] = True
     person = np.zeros(occ.shape, np.int32)
     labelled = np.zeros(occ.shape, np.int32)
     person[9, 6], labelled[9, 6] = 3, 4  # the camera saw a person on this one
@@ -210,6 +214,8 @@ def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a
     assert not people[5, 4] and not people[5, 8]
     assert not people[9, 2] and not people[9, 11] and people[9, 6]
     assert people[14:17, 14:17].all() and people[12, 3]
+    assert not people[0, 3] and not people[0, 6] and not people[0, 7]
+    assert people[15:18, 5:8].all()
 
 
 def _mask_world(r, value):

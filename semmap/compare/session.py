@@ -84,8 +84,29 @@ def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person
     "seen through"; a person's leg is two or three cells across."""
     person = np.asarray(person_hits, np.float32)
     unlabelled = dropped & (person == 0)
-    faces = (_surface_gaps(occupied) | _lines(unlabelled)) & unlabelled
+    faces = (_surface_gaps(occupied) | _lines(unlabelled) | _fringe(occupied, unlabelled)) & unlabelled
     return (dropped & ~faces) | ((person > 0) & (person >= 0.3 * np.asarray(labelled_hits, np.float32)))
+
+
+def _fringe(occupied: NDArray[np.bool_], cells: NDArray[np.bool_], max_cells: int = 2, min_surface: int = 5
+            ) -> NDArray[np.bool_]:
+    """The pieces of ``cells`` (8-connected) of at most ``max_cells`` cells touching a kept obstacle of
+    ``min_surface`` cells or more: the fringe of a surface whose beam ends scatter by a cell, seen
+    through now and then. A person who walked away leaves the whole leg dropped, two or three cells
+    across, and nothing kept beside it."""
+    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros_like(cells)
+    small = np.bincount(lab.ravel(), minlength=n + 1) <= max_cells
+    small[0] = False
+    olab, m = ndimage.label(occupied, structure=np.ones((3, 3), bool))
+    big = np.bincount(olab.ravel(), minlength=m + 1) >= min_surface
+    big[0] = False
+    beside = ndimage.binary_dilation(big[olab], np.ones((3, 3), bool))
+    touching = np.zeros(n + 1, bool)
+    touching[np.unique(lab[beside & cells])] = True
+    touching[0] = False
+    return np.asarray((small & touching)[lab], bool)
 
 
 def _surface_gaps(occupied: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -717,3 +717,35 @@ def test_legs_found_whatever_the_float_rounding_of_their_width():
         if not person[r0:r0 + 3, c0:c0 + 8][blob].all() or person[290].any():
             missed.append((r0, c0))
     assert not missed, f"legs at {missed} were not found"
+
+
+def test_an_unlabelled_cell_is_named_by_its_own_piece_before_a_nearer_object():
+    """A couch's front the camera never labelled, seen under a table in front of it, is the couch's: a
+    cell takes the class of the nearest labelled cell of its own piece (8-connected), not the nearer
+    table leg's; a lone unlabelled piece takes the nearest labelled cell's anywhere."""
+    from semmap.grid.clean import group_objects, semi_cell_classes
+    from semmap.grid.fusion import GridLayers
+
+    spec = GridSpec(0.05, 0.0, 0.0, 60, 40)
+    names = ("person", "couch", "dining table")
+    semi = np.zeros(spec.shape, bool)
+    counts = np.zeros((2, *spec.shape), np.uint16)  # layers: couch, dining table
+    semi[30, 5:55] = True  # the couch's front, 2.5 m
+    counts[0, 30, 50:55] = 4  # labelled couch at its east end only
+    for c in (8, 20):  # two legs of a table just in front of its west part, labelled
+        semi[26:28, c:c + 2] = True
+        counts[1, 26:28, c:c + 2] = 3
+    semi[10, 40] = True  # a lone unlabelled cell, nearest a couch-labelled cell
+    zeros = np.zeros(spec.shape, np.uint16)
+    mobility = np.zeros((4, *spec.shape), np.uint16)
+    layers = GridLayers(spec, np.where(semi, 2.0, 0.0).astype(np.float32), np.where(semi, 5, 0).astype(np.uint16),
+                        zeros, mobility, counts, (1, 2), names)
+    cls = semi_cell_classes(semi, layers, names)
+    assert np.all(cls[30, 5:55] == 0)  # the whole front is the couch's
+    assert np.all(cls[26:28, 8:10] == 1) and np.all(cls[26:28, 20:22] == 1)
+    assert cls[10, 40] == 0
+    objs, _ = group_objects(semi, layers, names, 2.0)
+    tables = [o for o in objs if o.class_name == "dining table"]
+    assert len(tables) == 1 and tables[0].n_cells == 8  # its two legs only
+    front = max((o for o in objs if o.class_name == "couch"), key=lambda o: o.n_cells)
+    assert front.n_cells >= 50 and max(front.size) == pytest.approx(2.5, abs=0.06)

@@ -678,14 +678,36 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
 
 def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str]) -> NDArray[np.intp]:
     """Per semi-static cell, the class layer (index into ``layers.class_ids``) it is named by: its own
-    most-hit movable class, or else the nearest named cell's; -1 elsewhere, and everywhere when no
-    cell is named. The objects are grouped per this class."""
+    most-hit movable class, or else the nearest named cell's of the same piece (8-connected), or, in a
+    piece with no named cell, the nearest named cell's; -1 elsewhere, and everywhere when no cell is
+    named. The objects are grouped per this class.
+
+    The piece first: a couch's front the camera never labelled, seen under a table in front of it, is
+    the couch's, not the nearer table leg's."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
     best = _best_semi_class(layers, names)
     named = semi & (best >= 0)
     if not named.any():
         return np.full(semi.shape, -1, np.intp)
     _, near = nearest_value(named, best)
-    return np.where(semi, near, -1).astype(np.intp)
+    out = np.where(semi, near, -1).astype(np.intp)
+    pieces, _ = ndimage.label(semi, structure=np.ones((3, 3), bool))
+    nr, nc = np.nonzero(named)
+    ur, uc = np.nonzero(semi & ~named)
+    if ur.size:
+        has_named = np.zeros(int(pieces.max()) + 1, bool)
+        has_named[pieces[nr, nc]] = True
+        sel = has_named[pieces[ur, uc]]
+        ur, uc = ur[sel], uc[sel]
+    if ur.size:
+        # one tree for every piece: a piece's cells lie far apart from any other piece's along a third axis
+        far = float(sum(semi.shape))
+        tree = cKDTree(np.column_stack([nr, nc, pieces[nr, nc] * far]).astype(np.float64))
+        _, j = tree.query(np.column_stack([ur, uc, pieces[ur, uc] * far]).astype(np.float64))
+        out[ur, uc] = best[nr[j], nc[j]]
+    return out
 
 
 def group_objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str],

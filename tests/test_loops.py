@@ -335,3 +335,48 @@ def test_config_is_checked():
         LoopConfig(min_inliers=1.5)
     with pytest.raises(ValueError, match="keyframe_distance"):
         LoopConfig(keyframe_distance=0.0)
+
+
+def test_a_fit_along_a_corridor_stops_early_and_a_fit_in_a_room_converges():
+    """The point-to-line refinement of a loop: along a corridor (walls of uneven panels) it slides
+    without converging, so it stops once its conditioning stays far below ``min_condition`` (the
+    match is refused as degenerate either way); in a room it converges to the true offset."""
+    import semmap.register.loops as lp
+
+    rng = np.random.default_rng(0)
+    cfg = LoopConfig()
+    rounds = []
+    real = lp._correspondences
+
+    def counted(*args, **kwargs):
+        rounds.append(1)
+        return real(*args, **kwargs)
+
+    panels = []
+    for y in (-1.0, 1.0):
+        x = -30.0
+        while x < 30.0:
+            length, dy = rng.uniform(0.5, 3.0), rng.uniform(-0.03, 0.03)
+            panels.append((x, y + dy, x + length, y + dy))
+            x += length
+    corridor = np.array(panels)
+    room = np.array(_box(0.0, 0.0, 8.0, 6.0))
+    # the guess comes from KISS-ICP: in the room within a few centimetres; along the corridor anywhere
+    for segments, degenerate, truth in ((corridor, True, np.array([0.6, -0.05, math.radians(1.5)])),
+                                        (room, False, np.array([0.06, -0.04, math.radians(1.5)]))):
+        pts = _scan(np.zeros(3), segments, rng)
+        sub = lp._Submap(pts, lp._line_normals(pts))
+        query = _scan(truth, segments, rng)
+        rounds.clear()
+        lp._correspondences = counted
+        try:
+            pose = lp._align(sub, query, np.zeros(3), cfg)
+        finally:
+            lp._correspondences = real
+        match = lp._evaluate(sub, query, pose, cfg)
+        if degenerate:  # without the stop it slid on for all 20 steps
+            assert len(rounds) == lp._DEGENERATE_AFTER + 1 < cfg.refine_iterations
+            assert match.condition < cfg.min_condition
+        else:
+            assert match.condition >= cfg.min_condition
+            assert np.allclose(pose[:2], truth[:2], atol=0.01) and abs(wrap_angle(pose[2] - truth[2])) < 0.003

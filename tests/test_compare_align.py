@@ -100,3 +100,52 @@ def test_a_history_of_three_sessions_gathers_a_move_and_its_return_into_one_plac
     wall = [p for p in h.places if p.events[0][1]["type"] == "static_added"]
     assert len(wall) == 1 and wall[0].events[0][0] == 2
     assert h.as_dict()["places"][0]["changed_in"] == ["week2", "week3"]
+
+
+def test_maps_of_two_tools_at_different_resolutions_align_and_show_the_new_wall(tmp_path):
+    """A at 5 cm, B from another tool at 10 cm (occupied where any of its 5 cm cells was), turned 23°
+    and shifted: the alignment holds within a cell of A and half a degree, and the one change found
+    is B's new wall, where it stands in A's frame."""
+    import cv2
+
+    from semmap.compare import diff
+    from semmap.io.mapserver import write_map
+    from semmap.records import GridSpec
+
+    res, n = 0.05, 300
+    occ = np.zeros((n, n), np.uint8)
+    for x in (10, 150, 290):
+        cv2.line(occ, (x, 10), (x, 290), 1, 2)
+    for y in (10, 160, 290):
+        cv2.line(occ, (10, y), (290, y), 1, 2)
+    occ[60:80, 150:153] = 0  # doors
+    occ[160:163, 200:220] = 0
+    for cx, cy in ((70, 80), (220, 230), (230, 60)):  # furniture legs
+        occ[cy - 6:cy + 7:12, cx - 8:cx + 9:16] = 1
+    known = np.zeros((n, n), bool)
+    known[5:296, 5:296] = True
+    occ_b = occ.copy()
+    cv2.line(occ_b, (30, 230), (110, 230), 1, 2)  # B's new wall: x 1.5-5.5 m, y 11.5 m in A's frame
+    yaw, shift = 23.0, (1.3, -0.7)
+    m = cv2.getRotationMatrix2D((n / 2, n / 2), yaw, 1.0)
+    m[:, 2] += (shift[0] / res, shift[1] / res)
+    ob = cv2.warpAffine(occ_b, m, (n, n), flags=cv2.INTER_NEAREST) > 0
+    kb = cv2.warpAffine(known.astype(np.uint8), m, (n, n), flags=cv2.INTER_NEAREST) > 0
+    ob2 = ob.reshape(n // 2, 2, n // 2, 2).any(axis=(1, 3))
+    kb2 = kb.reshape(n // 2, 2, n // 2, 2).any(axis=(1, 3))
+    write_map(tmp_path / "a.yaml", GridSpec(res, 0.0, 0.0, n, n), occ > 0, known=known)
+    b_origin = (3.0, -2.0)
+    write_map(tmp_path / "b.yaml", GridSpec(0.1, b_origin[0], b_origin[1], n // 2, n // 2), ob2, known=kb2)
+    r = diff(tmp_path / "a.yaml", tmp_path / "b.yaml")
+    # the truth: A's cell centres carried by the warp into B's raster, then into B's map frame
+    cells_a = np.random.default_rng(0).uniform(20, 280, size=(100, 2))
+    cells_b = cells_a @ m[:, :2].T + m[:, 2]
+    p_a = (cells_a + 0.5) * res
+    p_b = (cells_b + 0.5) * res + np.asarray(b_origin)
+    gap = np.linalg.norm(se2_apply(r.alignment.T_a_b, p_b) - p_a, axis=1)
+    assert float(np.sqrt(np.mean(gap ** 2))) <= res
+    assert abs(abs(math.degrees(float(r.alignment.T_a_b[2]))) - yaw) <= 0.5
+    counts = r.counts()
+    assert counts["static_added"] == 1 and counts["static_removed"] == 0, counts
+    wall = next(c for c in r.changes if c.type == "static_added")
+    assert abs(wall.centroid[0] - 3.5) < 0.25 and abs(wall.centroid[1] - 11.525) < 0.15

@@ -430,6 +430,49 @@ def _reference_point(src: NDArray[np.float64], dst: NDArray[np.float64], motion:
     return np.array([cx, cy], np.float64)
 
 
+def _arc_centre(cells: NDArray[np.intp], spec: GridSpec, max_radius: float) -> tuple[NDArray[np.float64], float] | None:
+    """The centre and radius of the circle an object's cells lie on, when they are one connected arc
+    (a pot, a bin, a round pedestal seen from one side) that fits a circle to half a cell and spans a
+    quarter turn or more; None otherwise (legs, faces, blobs). The middle of what one session saw of a
+    round object lies toward where it looked from: the centre does not."""
+    if cells.shape[0] < 6:
+        return None
+    r0, c0 = cells.min(axis=0)
+    img = np.zeros(tuple(cells.max(axis=0) - (r0, c0) + 1), bool)
+    img[cells[:, 0] - r0, cells[:, 1] - c0] = True
+    if ndimage.label(img, structure=np.ones((3, 3), bool))[1] != 1:
+        return None
+    xy = _cells_xy(cells, spec)
+    m = xy.mean(axis=0)
+    u = xy - m  # Kasa's fit: |p - c|^2 = r^2 as linear least squares in (c, r^2 - |c|^2)
+    a = np.column_stack([2.0 * u, np.ones(len(u))])
+    sol, *_ = np.linalg.lstsq(a, np.sum(u * u, axis=1), rcond=None)
+    centre = sol[:2]
+    radius_sq = float(sol[2] + centre @ centre)
+    if radius_sq <= 0.0:
+        return None
+    # Kasa's fit shrinks the circle of a short noisy arc: a few geometric Gauss-Newton steps from it
+    radius = math.sqrt(radius_sq)
+    for _ in range(10):
+        diff = u - centre
+        d = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
+        jac = np.column_stack([-diff / d[:, None], -np.ones(len(d))])
+        step, *_ = np.linalg.lstsq(jac, -(d - radius), rcond=None)
+        centre, radius = centre + step[:2], radius + float(step[2])
+        if float(np.abs(step).max()) < 1e-5:
+            break
+    d = np.linalg.norm(u - centre, axis=1)
+    if not 2.0 * spec.resolution <= radius <= max_radius:
+        return None
+    if float(np.sqrt(np.mean((d - radius) ** 2))) > 0.75 * spec.resolution:
+        return None
+    ang = np.sort(np.arctan2(u[:, 1] - centre[1], u[:, 0] - centre[0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2.0 * math.pi])
+    if 2.0 * math.pi - float(gaps.max()) < math.pi / 2:  # the arc spans under a quarter turn
+        return None
+    return centre + m, radius
+
+
 def _cells_xy(cells: NDArray[np.intp], spec: GridSpec) -> NDArray[np.float64]:
     return np.stack([spec.origin_x + (cells[:, 1] + 0.5) * spec.resolution,
                      spec.origin_y + (cells[:, 0] + 0.5) * spec.resolution], axis=1).astype(np.float64)
@@ -1013,6 +1056,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             new_c = se2_apply(motion, from_c[None])[0]
             # a box looks the same turned half way round: the turn is the short one, within ±90°
             turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0
+            # a round object seen from two sides: two arcs of one circle, which a rigid fit slides
+            # along each other; the circles' centres are where it was and went
+            max_r = 0.75 * max(*oa.src.size, *ob.src.size, 2.0 * res)
+            arc_a, arc_b = _arc_centre(oa.cells, spec, max_r), _arc_centre(ob.cells, spec, max_r)
+            if arc_a is not None and arc_b is not None and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1]):
+                from_c, new_c, turn = arc_a[0], arc_b[0], 0.0
             disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
             if disp < st.still_m and abs(turn) < st.still_deg:

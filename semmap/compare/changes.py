@@ -432,7 +432,7 @@ def _reference_point(src: NDArray[np.float64], dst: NDArray[np.float64], motion:
 
 def _arc_centre(cells: NDArray[np.intp], spec: GridSpec, max_radius: float) -> tuple[NDArray[np.float64], float] | None:
     """The centre and radius of the circle an object's cells lie on, when they are one connected arc
-    (a pot, a bin, a round pedestal seen from one side) that fits a circle to half a cell and spans a
+    (a pot, a bin, a round pedestal seen from one side) that fits a circle to 0.75 cell RMS and spans a
     quarter turn or more; None otherwise (legs, faces, blobs). The middle of what one session saw of a
     round object lies toward where it looked from: the centre does not."""
     if cells.shape[0] < 6:

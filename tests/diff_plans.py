@@ -56,6 +56,9 @@ class Room:
         self.unlabelled: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
         #: half the width of those legs (0: a single cell each, a table's thin legs)
         self.unlabelled_leg_half = 0.02
+        #: round objects (a pot): class, centre, radius, and the bearing (rad, world) the session saw
+        #: it from; drawn as the half of its rim facing that way, listed as an object
+        self.round: list[tuple[str, tuple[float, float], float, float]] = []
 
     def legs(self, c, size, yaw):
         """The four legs of a box object, world frame."""
@@ -121,6 +124,16 @@ class Room:
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
                                          float(yaw + self.box_yaw_error.get(k, 0.0) - T_world_map[2]), 16, 5,
                                          tuple(map(tuple, fp))))
+        for cls, c, radius, seen_from in self.round:
+            ang = seen_from + np.linspace(-math.pi / 2, math.pi / 2, 120)
+            rim = np.asarray(c, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)])
+            held = np.zeros(spec.shape, bool)
+            mark(rim, occ, semi, held)
+            index[held] = len(objs)
+            cm = se2_apply(t_map_world, rim.mean(axis=0)[None])[0]  # a box around what was seen
+            fp = se2_apply(t_map_world, np.asarray(c, float) + radius * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]))
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (2 * radius, radius), 0.0,
+                                         int(held.sum()), 5, tuple(map(tuple, fp))))
         h = self.unlabelled_leg_half
         for _cls, c, size, yaw in self.unlabelled:
             for leg in self.legs(c, size, yaw):

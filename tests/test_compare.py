@@ -55,6 +55,22 @@ def test_a_moved_and_turned_table_is_one_move_with_its_displacement_and_turn():
     assert mv.rotation_deg == pytest.approx(30.0, abs=3.0)  # legs on a 5 cm grid: 1.6 m apart, ±2°
 
 
+def test_a_pot_seen_from_two_sides_is_measured_at_its_centre():
+    """A pot (radius 0.2 m) moved 1.3 m: A saw its west half, B its south half. The middle of each
+    arc lies 13 cm toward where the robot looked from; the move is measured between the pot's
+    centres, within 3 cm."""
+    a, b = Room(), Room()
+    a.round.append(("potted plant", (3.0, 3.0), 0.2, math.pi))
+    b.round.append(("potted plant", (4.2, 3.5), 0.2, -math.pi / 2))
+    r = _diff(a, b)
+    assert r.counts()["object_moved"] == 1, r.counts()
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "potted plant"
+    assert np.allclose(_world(mv.from_xy), (3.0, 3.0), atol=0.03)
+    assert np.allclose(_world(mv.to_xy), (4.2, 3.5), atol=0.03)
+    assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
+
+
 def test_an_unmoved_object_and_a_person_are_no_change():
     a, b = Room(), Room()
     for room in (a, b):

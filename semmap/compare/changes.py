@@ -431,16 +431,18 @@ def _reference_point(src: NDArray[np.float64], dst: NDArray[np.float64], motion:
 
 
 def _arc_centre(cells: NDArray[np.intp], spec: GridSpec, max_radius: float) -> tuple[NDArray[np.float64], float] | None:
-    """The centre and radius of the circle an object's cells lie on, when they are one connected arc
-    (a pot, a bin, a round pedestal seen from one side) that fits a circle to 0.75 cell RMS and spans a
+    """The centre and radius of the circle an object's cells lie on, when they are one arc (gaps of
+    a cell bridged: a pot, a bin, a round pedestal seen from one side) that fits a circle to 0.75 cell RMS and spans a
     quarter turn or more; None otherwise (legs, faces, blobs). The middle of what one session saw of a
     round object lies toward where it looked from: the centre does not."""
     if cells.shape[0] < 6:
         return None
     r0, c0 = cells.min(axis=0)
-    img = np.zeros(tuple(cells.max(axis=0) - (r0, c0) + 1), bool)
-    img[cells[:, 0] - r0, cells[:, 1] - c0] = True
-    if ndimage.label(img, structure=np.ones((3, 3), bool))[1] != 1:
+    img = np.zeros(tuple(cells.max(axis=0) - (r0, c0) + 3), bool)
+    img[cells[:, 0] - r0 + 1, cells[:, 1] - c0 + 1] = True
+    # one piece, gaps of a cell bridged (a thin rim crossing a turned grid skips cells); legs stand
+    # farther apart
+    if ndimage.label(ndimage.binary_dilation(img, np.ones((3, 3), bool)), structure=np.ones((3, 3), bool))[1] != 1:
         return None
     xy = _cells_xy(cells, spec)
     m = xy.mean(axis=0)

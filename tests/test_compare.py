@@ -69,6 +69,7 @@ def test_a_pot_seen_from_two_sides_is_measured_at_its_centre():
     assert np.allclose(_world(mv.from_xy), (3.0, 3.0), atol=0.03)
     assert np.allclose(_world(mv.to_xy), (4.2, 3.5), atol=0.03)
     assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
+    assert mv.rotation_deg is None and mv.as_dict()["rotation_deg"] is None  # a round object's turn: not measurable
 
 
 def test_an_unmoved_object_and_a_person_are_no_change():

@@ -104,7 +104,8 @@ class Change:
     area_m2: float
     cells: int
     class_name: str | None = None
-    #: for ``object_moved``: where it was and is (A's map frame), how far and how much it turned
+    #: for ``object_moved``: where it was and is (A's map frame), how far and how much it turned (None
+    #: where a turn cannot be measured: a round object, or one about as wide as long, such as a chair)
     from_xy: tuple[float, float] | None = None
     to_xy: tuple[float, float] | None = None
     displacement_m: float | None = None
@@ -118,7 +119,7 @@ class Change:
             assert self.from_xy is not None and self.to_xy is not None
             d |= {"from": [round(v, 3) for v in self.from_xy], "to": [round(v, 3) for v in self.to_xy],
                   "displacement_m": round(float(self.displacement_m or 0.0), 3),
-                  "rotation_deg": round(float(self.rotation_deg or 0.0), 1)}
+                  "rotation_deg": None if self.rotation_deg is None else round(float(self.rotation_deg), 1)}
         return d
 
 
@@ -1062,7 +1063,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             # along each other; the circles' centres are where it was and went
             max_r = 0.75 * max(*oa.src.size, *ob.src.size, 2.0 * res)
             arc_a, arc_b = _arc_centre(oa.cells, spec, max_r), _arc_centre(ob.cells, spec, max_r)
-            if arc_a is not None and arc_b is not None and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1]):
+            round_obj = (arc_a is not None and arc_b is not None
+                         and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1]))
+            if round_obj:
+                assert arc_a is not None and arc_b is not None
                 from_c, new_c, turn = arc_a[0], arc_b[0], 0.0
             disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
@@ -1071,7 +1075,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             n = int(ob.cells.shape[0])
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
                                   oa.src.class_name or None, (float(from_c[0]), float(from_c[1])),
-                                  (float(new_c[0]), float(new_c[1])), disp, turn))
+                                  (float(new_c[0]), float(new_c[1])), disp,
+                                  turn if elongated and not round_obj else None))  # None: not measurable
             mark(ob, added, lo.free_a, zone, 1)
             mark(oa, removed, lo.free_b, zone, 2)
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):

@@ -219,7 +219,7 @@ def _report(r: DiffResult, path: Path) -> None:
     order = {t: i for i, t in enumerate(CHANGE_TYPES)}
     for i, c in enumerate(sorted(r.changes, key=lambda c: order[c.type]), 1):
         moved = f"{c.displacement_m:.3f}" if c.displacement_m is not None else ""
-        turned = f"{c.rotation_deg:+.1f}" if c.rotation_deg is not None else ""
+        turned = f"{c.rotation_deg:+.1f}" if c.rotation_deg is not None else ("-" if c.type == "object_moved" else "")
         what = object_name(c) if c.type.startswith("object") else ""
         lines.append(f"| {i} | {TYPE_LABELS[c.type]} | {what} | ({c.centroid[0]:.2f}, "
                      f"{c.centroid[1]:.2f}) | {c.area_m2:.3f} | {moved} | {turned} |")

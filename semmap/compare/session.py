@@ -81,20 +81,21 @@ def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person
     chair leg is not enough). A dropped cell no camera labelled a person is none when it lies in a gap
     of a surface (obstacles on two opposite sides) or in a line of such cells one cell thick: beams
     grazing a face seen obliquely pass some of its cells now and then, and cleaning drops them as
-    "seen through"; a person's leg is two or three cells across."""
+    "seen through"; a person's leg is two or three cells across. Nor is one in a piece of one or two
+    such cells beside a kept surface (its fringe)."""
     person = np.asarray(person_hits, np.float32)
     unlabelled = dropped & (person == 0)
-    faces = (_surface_gaps(occupied) | _lines(unlabelled) | _fringe(occupied, unlabelled)) & unlabelled
+    lab, n = ndimage.label(unlabelled, structure=np.ones((3, 3), bool))  # its pieces, 8-connected
+    faces = (_surface_gaps(occupied) | _lines(unlabelled, lab, n) | _fringe(occupied, unlabelled, lab, n)) & unlabelled
     return (dropped & ~faces) | ((person > 0) & (person >= 0.3 * np.asarray(labelled_hits, np.float32)))
 
 
-def _fringe(occupied: NDArray[np.bool_], cells: NDArray[np.bool_], max_cells: int = 2, min_surface: int = 5
-            ) -> NDArray[np.bool_]:
-    """The pieces of ``cells`` (8-connected) of at most ``max_cells`` cells touching a kept obstacle of
-    ``min_surface`` cells or more: the fringe of a surface whose beam ends scatter by a cell, seen
-    through now and then. A person who walked away leaves the whole leg dropped, two or three cells
-    across, and nothing kept beside it."""
-    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+def _fringe(occupied: NDArray[np.bool_], cells: NDArray[np.bool_], lab: NDArray[np.int32], n: int,
+            max_cells: int = 2, min_surface: int = 5) -> NDArray[np.bool_]:
+    """The pieces of ``cells`` (``lab``: their ``n`` 8-connected labels) of at most ``max_cells`` cells
+    touching a kept obstacle of ``min_surface`` cells or more: the fringe of a surface whose beam ends
+    scatter by a cell, seen through now and then. A person who walked away leaves the whole leg
+    dropped, two or three cells across, and nothing kept beside it."""
     if n == 0:
         return np.zeros_like(cells)
     small = np.bincount(lab.ravel(), minlength=n + 1) <= max_cells
@@ -122,10 +123,10 @@ def _surface_gaps(occupied: NDArray[np.bool_]) -> NDArray[np.bool_]:
     return out
 
 
-def _lines(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """The pieces of ``cells`` (8-connected) one cell thick (no 2 x 2 block) and three cells long or
-    more: a face carved by beams grazing it, not a person's leg (two or three cells across)."""
-    lab, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
+def _lines(cells: NDArray[np.bool_], lab: NDArray[np.int32], n: int) -> NDArray[np.bool_]:
+    """The pieces of ``cells`` (``lab``: their ``n`` 8-connected labels) one cell thick (no 2 x 2
+    block) and three cells long or more: a face carved by beams grazing it, not a person's leg (two
+    or three cells across)."""
     if n == 0:
         return np.zeros_like(cells)
     block = ndimage.binary_erosion(cells, np.ones((2, 2), bool), border_value=0)  # a corner of a 2 x 2 block

@@ -234,8 +234,13 @@ def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, in
         logging.getLogger(name or None).setLevel(level)
     try:
         import cv2
+        from threadpoolctl import threadpool_limits
 
-        cv2.setNumThreads(1)  # workers share the machine's cores with each other
+        # workers share the machine's cores with each other: a library's own threads only take CPU
+        # from the other stages (OpenBLAS's spin while they wait: in the loop closer's small products
+        # they tripled the registration worker's CPU time)
+        cv2.setNumThreads(1)
+        threadpool_limits(1, user_api="blas")
         body(out, *args)
     except (BrokenPipeError, EOFError, ConnectionResetError):
         # the process at the other end of a pipe is gone: whoever waits on us learns why from it

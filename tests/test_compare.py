@@ -340,6 +340,30 @@ def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(label
     assert len(chairs) == 1 and np.linalg.norm(chairs[0] - (6.3, 4.5)) < 0.1
 
 
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_chair_moved_less_than_its_size_onto_its_own_legs_places_is_one_move(labelled_in):
+    # pushed back by its legs' spacing (0.34 m) with no camera label at one end: two of its legs now stand
+    # where the other two stood, so those are no change and only two legs are new. Two legs fit any
+    # blob, so the fit takes the other session's obstacles on the chair's own cells as well
+    a, b = Room(), Room()
+    here, there = ("chair", (6.0, 3.0), (0.4, 0.4), 0.0), ("chair", (6.0, 3.34), (0.4, 0.4), 0.0)
+    if labelled_in == "A":
+        a.objects.append(here)
+        b.unlabelled.append(there)
+    else:
+        a.unlabelled.append(here)
+        b.objects.append(there)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_disappeared"] == counts["object_appeared"] == 0
+    assert counts["static_added"] == counts["static_removed"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert mv.displacement_m == pytest.approx(0.34, abs=0.03)
+    assert np.linalg.norm(_world(mv.to_xy) - (6.0, 3.34)) < 0.05
+
+
 def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
     # A's build drew the bed's box over the chair beside it (and listed the bed after it). The build
     # grouped the chair's legs into the chair, so its move is one move and the bed did not change

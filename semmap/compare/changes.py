@@ -599,14 +599,20 @@ def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[
 
 
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
-                         objects_in_a: bool) -> list[tuple[_Obj, _Obj]]:
+                         objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None
+                         ) -> list[tuple[_Obj, _Obj]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
     ``max_move_m``, when a rigid motion lays at least ``unlabelled_fit`` of each one's cells on the
     other's and ``min_fit_legs`` legs or more of each on the other's (a chair's four legs on four
     legs; one or two legs fit any blob). The piece becomes an object of the same class. Pairs are
-    (A's, B's)."""
+    (A's, B's).
+
+    An object moved by less than its own size may put legs where legs of its own stood: those are
+    no change, so the piece holds only the others (two of a chair's four). ``other_obstacles`` (the
+    other session's obstacles, on the common grid): for a piece within one object length, its cells
+    on the object's own cells join the piece."""
     res = spec.resolution
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
@@ -615,10 +621,17 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             continue
         oxy = _cells_xy(o.cells, spec)
         length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
-        best, best_q = None, 0.0
-        for k, cells in enumerate(pieces):
-            if k in used or cells.shape[0] < 2:
+        own = np.zeros((0, 2), np.intp)
+        if other_obstacles is not None:
+            own = _cells_near(other_obstacles, o.cells, 1.5)
+        o_tree = cKDTree(oxy)
+        best, best_q, best_cells = None, 0.0, None
+        for k, piece in enumerate(pieces):
+            if k in used or piece.shape[0] < 2:
                 continue
+            cells = piece
+            if own.shape[0] and float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
+                cells = np.unique(np.concatenate([piece, own]), axis=0)
             pxy, p_len, _, p_yaw = _piece_box(cells, spec)
             if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) > st.max_move_m:
                 continue
@@ -631,13 +644,26 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             q, legs = _shape_fit(src, dst, turns, res)
             if q >= st.unlabelled_fit and legs >= st.min_fit_legs and q > best_q:
-                best, best_q = k, q
-        if best is None:
+                best, best_q, best_cells = k, q, cells
+        if best is None or best_cells is None:
             continue
         used.add(best)
-        twin = _piece_object(pieces[best], o.src.class_name, spec)
+        twin = _piece_object(best_cells, o.src.class_name, spec)
         out.append((o, twin) if objects_in_a else (twin, o))
     return out
+
+
+def _cells_near(mask: NDArray[np.bool_], cells: NDArray[np.intp], radius: float) -> NDArray[np.intp]:
+    """The cells (n, 2) of ``mask`` within ``radius`` cells of any of ``cells``."""
+    r = int(math.floor(radius))
+    h, w = mask.shape
+    r0, c0 = max(int(cells[:, 0].min()) - r, 0), max(int(cells[:, 1].min()) - r, 0)
+    r1, c1 = min(int(cells[:, 0].max()) + r + 1, h), min(int(cells[:, 1].max()) + r + 1, w)
+    window = np.zeros((r1 - r0, c1 - c0), bool)
+    window[cells[:, 0] - r0, cells[:, 1] - c0] = True
+    near = _dilate(window, radius) & mask[r0:r1, c0:c1]
+    rr, cc = np.nonzero(near)
+    return np.stack([rr + r0, cc + c0], axis=1).astype(np.intp)
 
 
 def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]], dyn_a: NDArray[np.bool_],
@@ -979,12 +1005,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # object, of its size, onto which its cells fit
         group = st.group_m / res
         off_semi_a, off_semi_b = ~_dilate(semi_a, near), ~_dilate(semi_b, near)
-        for objs_idx, objs_all, changed, in_a in ((only_a, gone, added & off_semi_b, True),
-                                                  (only_b, new, removed & off_semi_a, False)):
+        # (and the other session's unlabelled obstacles on the object's own cells: legs put back where
+        # legs of its own stood)
+        sides = ((only_a, gone, added & off_semi_b, True, obst_b & off_semi_b),
+                 (only_b, new, removed & off_semi_a, False, obst_a & off_semi_a))
+        for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
             partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, spec, group), spec,
-                                            st, in_a)
+                                            st, in_a, other)
             moved += partners
             done = {id(p[0] if in_a else p[1]) for p in partners}
             objs_idx[:] = [i for i in objs_idx if id(objs_all[i]) not in done]

@@ -59,6 +59,8 @@ class Room:
         #: round objects (a pot): class, centre, radius, and the bearing (rad, world) the session saw
         #: it from; drawn as the half of its rim facing that way, listed as an object
         self.round: list[tuple[str, tuple[float, float], float, float]] = []
+        #: round things no camera labelled: centre, radius and the bearing seen from; static obstacles
+        self.unlabelled_round: list[tuple[tuple[float, float], float, float]] = []
 
     def legs(self, c, size, yaw):
         """The four legs of a box object, world frame."""
@@ -134,6 +136,9 @@ class Room:
             fp = se2_apply(t_map_world, np.asarray(c, float) + radius * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]))
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (2 * radius, radius), 0.0,
                                          int(held.sum()), 5, tuple(map(tuple, fp))))
+        for c, radius, seen_from in self.unlabelled_round:
+            ang = seen_from + np.linspace(-math.pi / 2, math.pi / 2, 120)
+            mark(np.asarray(c, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)]), occ)
         h = self.unlabelled_leg_half
         for _cls, c, size, yaw in self.unlabelled:
             for leg in self.legs(c, size, yaw):

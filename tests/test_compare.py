@@ -72,6 +72,28 @@ def test_a_pot_seen_from_two_sides_is_measured_at_its_centre():
     assert mv.rotation_deg is None and mv.as_dict()["rotation_deg"] is None  # a round object's turn: not measurable
 
 
+@pytest.mark.parametrize("radius_b", [0.2, 0.35])
+def test_a_pot_no_camera_labelled_moved_is_one_move_and_a_bigger_round_thing_is_not(radius_b):
+    """A pot no camera labelled (its rim a static obstacle: one blob, no legs to fit) moved 1.3 m, seen
+    from two sides: the two arcs of one radius are one move of an unlabelled object, measured between
+    the circles' centres. A round thing of another radius in B's map is another thing: A's pot removed
+    and B's added."""
+    a, b = Room(), Room()
+    a.unlabelled_round.append(((3.0, 3.0), 0.2, math.pi))
+    b.unlabelled_round.append(((4.2, 3.5), radius_b, -math.pi / 2))
+    r = _diff(a, b)
+    counts = r.counts()
+    if radius_b == 0.2:
+        assert counts["object_moved"] == 1 and counts["static_added"] == counts["static_removed"] == 0, counts
+        mv = r.of_type("object_moved")[0]
+        assert mv.class_name is None
+        assert np.allclose(_world(mv.from_xy), (3.0, 3.0), atol=0.03)
+        assert np.allclose(_world(mv.to_xy), (4.2, 3.5), atol=0.03)
+        assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
+    else:
+        assert counts["object_moved"] == 0 and counts["static_added"] == counts["static_removed"] == 1, counts
+
+
 def test_an_unmoved_object_and_a_person_are_no_change():
     a, b = Room(), Room()
     for room in (a, b):

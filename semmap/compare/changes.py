@@ -653,6 +653,15 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     return out
 
 
+def _same_arc(cells_a: NDArray[np.intp], cells_b: NDArray[np.intp], length_a: float, length_b: float,
+              spec: GridSpec) -> bool:
+    """Both pieces are arcs (:func:`_arc_centre`: 90° of a rim or more, so a radius at most three
+    quarters of the piece's length) of circles whose radii differ by at most a quarter."""
+    arc_a = _arc_centre(cells_a, spec, 0.75 * max(length_a, spec.resolution))
+    arc_b = _arc_centre(cells_b, spec, 0.75 * max(length_b, spec.resolution))
+    return arc_a is not None and arc_b is not None and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1])
+
+
 def _cells_near(mask: NDArray[np.bool_], cells: NDArray[np.intp], radius: float) -> NDArray[np.intp]:
     """The cells (n, 2) of ``mask`` within ``radius`` cells of any of ``cells``."""
     r = int(math.floor(radius))
@@ -672,7 +681,8 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
     B's added cells (no objects, each at most ``max_object_m`` long, of lengths within 30 % of each
     other and at most ``max_move_m`` apart) onto which a rigid motion lays at least
     ``unlabelled_fit`` of each one's cells and ``min_fit_legs`` of each one's legs (four legs on four
-    legs: two people's legs fit each other too); of those, the pairs that move least in all. Their
+    legs: two people's legs fit each other too), or which are arcs of circles of one radius (a pot,
+    a round bin: one blob, no legs, but its rim); of those, the pairs that move least in all. Their
     class is None: an object, of unknown class. A piece whose own cells are a third or more people's
     (``dyn_a``, ``dyn_b``: a person cleaning left in) is none."""
     res = spec.resolution
@@ -696,7 +706,8 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
             turn = _box_turn(pa[3], pb[3])
             turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             q, legs = _shape_fit(pa[0], pb[0], turns, res)
-            if q >= st.unlabelled_fit and legs >= st.min_fit_legs:
+            if q >= st.unlabelled_fit and (legs >= st.min_fit_legs or _same_arc(pieces_a[i], pieces_b[j], pa[1], pb[1],
+                                                                               spec)):
                 cands.append((i, j, float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))))
     if not cands:
         return []

@@ -543,3 +543,16 @@ def test_a_round_object_is_placed_at_its_circle_not_at_the_middle_of_the_arc_one
     face = np.array([(40, c) for c in range(5, 30)] + [(41, c) for c in range(5, 30)])
     for cells in (legs, blob, face):
         assert _arc_centre(cells, spec, 0.3) is None
+
+
+def test_two_sessions_whose_folders_share_a_name_are_named_by_their_parents():
+    # two sites' builds, each in a folder called "fused": the report must say which is which
+    t_a_b = se2_apply(se2_inverse(T_A), T_B[None, :2])[0]
+    al = Alignment(np.array([t_a_b[0], t_a_b[1], T_B[2] - T_A[2]]))
+    a, b = Room().session(T_A, "monday/site1/fused"), Room().session(T_B, "tuesday/site1/fused")
+    r = diff_sessions(a, b, alignment=al)
+    assert (r.a.name, r.b.name) == ("monday/site1/fused", "tuesday/site1/fused")
+    assert summary_lines(r)[0].startswith("tuesday/site1/fused against monday/site1/fused")
+    # names that differ stay as they are
+    r = diff_sessions(Room().session(T_A, "x/monday"), Room().session(T_B, "x/tuesday"), alignment=al)
+    assert (r.a.name, r.b.name) == ("monday", "tuesday")

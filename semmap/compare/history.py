@@ -22,7 +22,7 @@ from ..geometry import se2_apply, se2_compose, se2_inverse, wrap_angle
 from .align import AlignInput, Alignment, align_maps
 from .changes import CHANGE_TYPES, Change, ChangeSettings
 from .result import DiffResult, diff_sessions
-from .session import Session, open_session
+from .session import Session, distinct_names, open_session
 
 __all__ = ["HistoryResult", "Place", "diff_history"]
 
@@ -91,7 +91,7 @@ def diff_history(paths: list[str | Path | Session], *, settings: ChangeSettings 
                  same_place_m: float = 0.5) -> HistoryResult:
     """Align every session to the first, compare each with the one before, gather the places."""
     t0 = time.perf_counter()
-    sessions = tuple(p if isinstance(p, Session) else open_session(p) for p in paths)
+    sessions = distinct_names([p if isinstance(p, Session) else open_session(p) for p in paths])
     first = AlignInput.from_session(sessions[0])
     t_first = [np.zeros(3)]
     for s in sessions[1:]:

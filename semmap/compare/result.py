@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from ..records import GridSpec
 from .align import AlignInput, Alignment, align_maps
 from .changes import CHANGE_TYPES, Change, ChangeSettings, LaidOut, classify_changes, lay_out
-from .session import Session, open_session
+from .session import Session, distinct_names, open_session
 
 __all__ = ["WALL_AGREEMENT", "DiffResult", "diff_sessions"]
 
@@ -89,8 +89,8 @@ def diff_sessions(a: str | Path | Session, b: str | Path | Session, *, settings:
     """Compare session ``b`` with session ``a``: align B onto A (unless ``alignment`` is given), then
     classify what changed. ``a`` and ``b``: map folders, map_server YAMLs, or opened sessions."""
     t0 = time.perf_counter()
-    sa = a if isinstance(a, Session) else open_session(a)
-    sb = b if isinstance(b, Session) else open_session(b)
+    sa, sb = distinct_names([a if isinstance(a, Session) else open_session(a),
+                             b if isinstance(b, Session) else open_session(b)])
     st = settings or ChangeSettings()
     if alignment is None:
         alignment = align_maps(AlignInput.from_session(sa), AlignInput.from_session(sb))

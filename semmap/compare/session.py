@@ -8,6 +8,8 @@ or any other tool (``map.yaml`` + image) has only the occupancy: the diff is geo
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,7 +29,7 @@ from ..records import GridSpec, Mobility
 if TYPE_CHECKING:
     from ..mapfolder.reader import MapFolder
 
-__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "open_session", "people_cells"]
+__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "distinct_names", "open_session", "people_cells"]
 
 #: a cell the map calls free is a faint obstacle when at least this many beams ended in it, and this
 #: share of the beams that reached it (a person walking through ends a beam or two among hundreds)
@@ -59,10 +61,16 @@ class Session:
     #: per cell, the index in ``objects`` of the object that holds it (-1: none), as the build grouped
     #: them; None when it cannot be told (a plain map, or an object list that is not the build's)
     object_index: NDArray[np.int32] | None = None
+    #: the name reports give the session (None: its folder's, see :attr:`name`)
+    label: str | None = None
 
     @property
     def name(self) -> str:
-        return self.path.name if self.path.name not in ("map.yaml", "") else self.path.parent.name
+        """The session's name in reports: its map folder's name (the YAML's folder for a plain map), or
+        its ``label``."""
+        if self.label is not None:
+            return self.label
+        return _base(self.path).name
 
     @property
     def observed(self) -> NDArray[np.bool_]:
@@ -72,6 +80,27 @@ class Session:
     def static(self) -> NDArray[np.bool_]:
         """Obstacles that are structure: occupied, not movable."""
         return self.occupied & ~self.semi_static
+
+
+def _base(path: Path) -> Path:
+    """The folder that names a session: the map folder, or the folder of a plain map's YAML."""
+    return path if path.name not in ("map.yaml", "") else path.parent
+
+
+def distinct_names(sessions: Sequence[Session]) -> tuple[Session, ...]:
+    """The sessions, labelled so that no two share a name: sessions whose folders have one name
+    (``site1/fused`` and ``site2/fused``) are named by as many parent folders as tell them apart."""
+    out = list(sessions)
+    names = [s.name for s in out]
+    if len(set(names)) == len(names):
+        return tuple(out)
+    parts = [_base(s.path.absolute()).parts for s in out]
+    cand = names
+    for depth in range(2, max(len(p) for p in parts) + 1):
+        cand = ["/".join(p[-depth:]) for p in parts]
+        if len(set(cand)) == len(cand):
+            break
+    return tuple(dataclasses.replace(s, label=c) if c != n else s for s, c, n in zip(out, cand, names))
 
 
 def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person_hits: NDArray[np.integer],

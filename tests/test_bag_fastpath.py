@@ -128,3 +128,36 @@ def test_a_build_opens_its_bag_once(short_tour, tmp_path, monkeypatch):
     res = build(short_tour.out, tmp_path / "map", overrides={"workers": False})
     assert res.summary.painting.scans_painted > 0
     assert opened == [short_tour.bag, short_tour.bag]  # the tour, and its label images (InProcessImages)
+
+
+def test_a_recording_split_into_two_bags_is_refused_with_how_to_join_them(tmp_path):
+    # rosbag record --split writes a recording as several files: semmap reads one bag, and says how to
+    # join the parts (rosbags, which it reads bags with, installs rosbags-convert); the joined bag holds
+    # every scan of both, in time order
+    import shlex
+    import subprocess
+    import sys
+
+    from semmap.errors import BagError
+    from semmap.io.bag import resolve_bag_path
+
+    n = 91
+    for part in range(2):
+        with BagWriter(tmp_path / f"tour_{part}.bag", "ros1") as w:
+            for k in range(20):
+                t = 100_000_000_000 + (20 * part + k) * 100_000_000
+                w.scan("/scan", t, Scan(t, "laser", -1.5, 3.0 / (n - 1), np.full(n, 1.0 + 20 * part + k, np.float32),
+                                        0.05, 60.0, 0.0, 0.1))
+    with pytest.raises(BagError) as err:
+        resolve_bag_path(tmp_path)
+    msg = str(err.value)
+    assert "tour_0.bag, tour_1.bag" in msg and "rosbags-convert" in msg
+    command = shlex.split(msg[msg.index("rosbags-convert"):])
+    assert command[:4] == ["rosbags-convert", "--src", "tour_0.bag", "tour_1.bag"]
+    joined = tmp_path / "joined"
+    joined.mkdir()
+    run = subprocess.run([sys.executable, "-c", "import sys; from rosbags.convert.cli import main; sys.exit(main())",
+                          *command[1:-1], str(joined / command[-1])], cwd=tmp_path, capture_output=True, text=True,
+                         check=False)
+    assert run.returncode == 0, run.stderr
+    assert _ranges(resolve_bag_path(joined)) == [1.0 + k for k in range(40)]

@@ -405,7 +405,10 @@ def resolve_bag_path(path: str | Path) -> Path:
     if not candidates:
         raise BagError(f"{p}: folder holds no bag (no metadata.yaml and no .bag file)")
     names = ", ".join(c.name for c in candidates)
-    raise BagError(f"{p}: folder holds several bags ({names}); name one")
+    # a recording split into files (rosbag record --split): rosbags, which semmap reads with, joins them
+    parts = " ".join(c.name for c in candidates)
+    raise BagError(f"{p}: folder holds several bags ({names}); name one, or, if they are one recording split "
+                   f"into parts, join them in time order with: rosbags-convert --src {parts} --dst joined.bag")
 
 
 # ---------------------------------------------------------------------------------------

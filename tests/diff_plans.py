@@ -45,6 +45,9 @@ class Room:
         #: legs the map lost to rays grazing past them but which beams hit again and again: free cells,
         #: faint obstacles
         self.faint_legs: list[tuple[float, float]] = []
+        #: legs the map lost whose cells beams still ended in a few times among the many that passed
+        #: (glimpsed, below the faint share)
+        self.glimpsed_legs: list[tuple[float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
         #: how far off the heading of an object's box in the list is (rad; a box drawn around three legs
         #: of a table need not follow the table)
@@ -148,12 +151,16 @@ class Room:
         faint = np.zeros(spec.shape, bool)
         for p in self.faint_legs:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), faint)
+        glimpsed = faint.copy()
+        for p in self.glimpsed_legs:
+            mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), glimpsed)
         for p in self.dropped:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), dyn)
         for p in self.people:
             mark(np.array(p) + np.array([[dx, dy] for dx in (-0.1, 0, 0.1) for dy in (-0.1, 0, 0.1)]), occ, dyn)
         free = inside & ~occ
         return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True,
-                       faint=faint & ~occ, object_index=index if self.object_layer else None)
+                       faint=faint & ~occ, object_index=index if self.object_layer else None,
+                       glimpsed=glimpsed & ~occ)
 
 

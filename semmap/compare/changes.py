@@ -56,7 +56,7 @@ CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appear
                 "newly_explored", "no_longer_covered")
 
 # bits of the code image both sessions are resampled through
-_OCC, _FREE, _SEMI, _DYN, _FAINT = 1, 2, 4, 8, 16
+_OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE = 1, 2, 4, 8, 16, 32
 
 
 @dataclass(frozen=True)
@@ -144,6 +144,9 @@ class LaidOut:
     #: per cell, the index of the object of its session that holds it (-1: none; None: not known)
     index_a: NDArray[np.int32] | None = None
     index_b: NDArray[np.int32] | None = None
+    #: glimpsed cells (see :class:`Session`): free cells beams ended in again and again
+    glimpse_a: NDArray[np.bool_] | None = None
+    glimpse_b: NDArray[np.bool_] | None = None
 
 
 def _code(s: Session) -> NDArray[np.uint8]:
@@ -154,6 +157,8 @@ def _code(s: Session) -> NDArray[np.uint8]:
     c[s.dynamic] |= _DYN
     if s.faint is not None:
         c[s.faint] |= _FAINT
+    if s.glimpsed is not None:
+        c[s.glimpsed] |= _GLIMPSE
     return c
 
 
@@ -218,7 +223,9 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
     return LaidOut(spec, (r0, c0, sa.height, sa.width),
                    bits(code_a, _OCC), bits(code_a, _FREE), bits(code_a, _SEMI), bits(code_a, _DYN),
                    bits(code_b, _OCC), bits(code_b, _FREE), bits(code_b, _SEMI), bits(code_b, _DYN),
-                   bits(code_a, _FAINT), bits(code_b, _FAINT), index_a, index_b)
+                   bits(code_a, _FAINT), bits(code_b, _FAINT), index_a, index_b,
+                   bits(code_a, _GLIMPSE) if a.glimpsed is not None else None,
+                   bits(code_b, _GLIMPSE) if b.glimpsed is not None else None)
 
 
 _disk = disk_kernel
@@ -985,8 +992,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # not hide the chair
         people_for_a = lo.dyn_a | _dilate(lo.dyn_b, 1.5)
         people_for_b = lo.dyn_b | _dilate(lo.dyn_a, 1.5)
-        gone = _changed_objects(objs_a, removed, near_b, obs_b, people_for_a, st, left_out, "objects_unobserved_in_b")
-        new = _changed_objects(objs_b, added, near_a, obs_a, people_for_b, st, left_out, "objects_unobserved_in_a")
+        # a leg the other session's beams ended on again and again (however many passed it by) may be
+        # there still: its map lost a thin leg, which is no evidence the object went
+        still_a = near_b if lo.glimpse_b is None else near_b | _dilate(lo.glimpse_b, fine)
+        still_b = near_a if lo.glimpse_a is None else near_a | _dilate(lo.glimpse_a, fine)
+        gone = _changed_objects(objs_a, removed & ~still_a, still_a, obs_b, people_for_a, st, left_out,
+                                "objects_unobserved_in_b")
+        new = _changed_objects(objs_b, added & ~still_b, still_b, obs_a, people_for_b, st, left_out,
+                               "objects_unobserved_in_a")
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}

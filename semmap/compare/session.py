@@ -61,6 +61,10 @@ class Session:
     #: per cell, the index in ``objects`` of the object that holds it (-1: none), as the build grouped
     #: them; None when it cannot be told (a plain map, or an object list that is not the build's)
     object_index: NDArray[np.int32] | None = None
+    #: cells not occupied that beams ended in again and again however many passed (``FAINT_MIN_HITS``):
+    #: too weak to call an obstacle, but no evidence that an object the other session saw there is gone.
+    #: None for a plain map
+    glimpsed: NDArray[np.bool_] | None = None
     #: the name reports give the session (None: its folder's, see :attr:`name`)
     label: str | None = None
 
@@ -209,12 +213,13 @@ def open_session(path: str | Path) -> Session:
                                mob[Mobility.STATIC:].sum(axis=0))
         hits = layers.hits.astype(np.float32)
         seen = hits + layers.free.astype(np.float32)
-        faint = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS) & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
+        glimpsed = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS)
+        faint = glimpsed & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
         semi = np.asarray(m.semi_static, bool)
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
         return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
                        m.objects, bool(m.class_names), faint=faint,
-                       object_index=_object_index(p, m))
+                       object_index=_object_index(p, m), glimpsed=glimpsed)
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

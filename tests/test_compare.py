@@ -335,13 +335,11 @@ def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
 
 
-@pytest.mark.parametrize("labelled_in", ["A", "B"])
-def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(labelled_in):
-    # the chair stood beside the robot's path in one tour, out of the camera's view: its legs there are
-    # plain obstacles in no object. Its four legs fit the labelled chair's: a chair moved, not a chair
-    # gone and a static obstacle added
+def _one_move_one_end_labelled(here, there, labelled_in):
+    """Diff a room whose object stood at ``here`` in A and ``there`` in B, listed as an object only in
+    session ``labelled_in`` (plain obstacles in the other); assert it is one move of its class and
+    nothing else. Returns the result and the move."""
     a, b = Room(), Room()
-    here, there = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0), ("chair", (6.3, 4.5), (0.45, 0.45), math.radians(30))
     if labelled_in == "A":
         a.objects.append(here)
         b.unlabelled.append(there)
@@ -354,7 +352,17 @@ def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(label
     assert counts["object_disappeared"] == counts["object_appeared"] == 0
     assert counts["static_added"] == counts["static_removed"] == 0
     mv = r.of_type("object_moved")[0]
-    assert mv.class_name == "chair"
+    assert mv.class_name == here[0]
+    return r, mv
+
+
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(labelled_in):
+    # the chair stood beside the robot's path in one tour, out of the camera's view: its legs there are
+    # plain obstacles in no object. Its four legs fit the labelled chair's: a chair moved, not a chair
+    # gone and a static obstacle added
+    here, there = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0), ("chair", (6.3, 4.5), (0.45, 0.45), math.radians(30))
+    r, mv = _one_move_one_end_labelled(here, there, labelled_in)
     assert mv.displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
     assert np.linalg.norm(_world(mv.to_xy) - (6.3, 4.5)) < 0.05
     # the updated map's object list has the chair where it went, and not where it was
@@ -367,21 +375,8 @@ def test_a_chair_moved_less_than_its_size_onto_its_own_legs_places_is_one_move(l
     # pushed back by its legs' spacing (0.34 m) with no camera label at one end: two of its legs now stand
     # where the other two stood, so those are no change and only two legs are new. Two legs fit any
     # blob, so the fit takes the other session's obstacles on the chair's own cells as well
-    a, b = Room(), Room()
     here, there = ("chair", (6.0, 3.0), (0.4, 0.4), 0.0), ("chair", (6.0, 3.34), (0.4, 0.4), 0.0)
-    if labelled_in == "A":
-        a.objects.append(here)
-        b.unlabelled.append(there)
-    else:
-        a.unlabelled.append(here)
-        b.objects.append(there)
-    r = _diff(a, b)
-    counts = r.counts()
-    assert counts["object_moved"] == 1, counts
-    assert counts["object_disappeared"] == counts["object_appeared"] == 0
-    assert counts["static_added"] == counts["static_removed"] == 0
-    mv = r.of_type("object_moved")[0]
-    assert mv.class_name == "chair"
+    _, mv = _one_move_one_end_labelled(here, there, labelled_in)
     assert mv.displacement_m == pytest.approx(0.34, abs=0.03)
     assert np.linalg.norm(_world(mv.to_xy) - (6.0, 3.34)) < 0.05
 

@@ -628,16 +628,15 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             continue
         oxy = _cells_xy(o.cells, spec)
         length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
-        own = np.zeros((0, 2), np.intp)
-        if other_obstacles is not None:
-            own = _cells_near(other_obstacles, o.cells, 1.5)
-        o_tree = cKDTree(oxy)
+        own = _cells_near(other_obstacles, o.cells, 1.5) if other_obstacles is not None else None
+        o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
         best, best_q, best_cells = None, 0.0, None
         for k, piece in enumerate(pieces):
             if k in used or piece.shape[0] < 2:
                 continue
             cells = piece
-            if own.shape[0] and float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
+            if o_tree is not None and own is not None and \
+                    float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
                 cells = np.unique(np.concatenate([piece, own]), axis=0)
             pxy, p_len, _, p_yaw = _piece_box(cells, spec)
             if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) > st.max_move_m:
@@ -660,13 +659,17 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     return out
 
 
-def _same_arc(cells_a: NDArray[np.intp], cells_b: NDArray[np.intp], length_a: float, length_b: float,
-              spec: GridSpec) -> bool:
-    """Both pieces are arcs (:func:`_arc_centre`: 90° of a rim or more, so a radius at most three
-    quarters of the piece's length) of circles whose radii differ by at most a quarter."""
-    arc_a = _arc_centre(cells_a, spec, 0.75 * max(length_a, spec.resolution))
-    arc_b = _arc_centre(cells_b, spec, 0.75 * max(length_b, spec.resolution))
-    return arc_a is not None and arc_b is not None and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1])
+def _piece_arc(cells: NDArray[np.intp], length: float, spec: GridSpec) -> float | None:
+    """The radius of the circle a piece is an arc of (:func:`_arc_centre`: 90° of a rim or more, so a
+    radius at most three quarters of the piece's length), or None when it is no arc."""
+    arc = _arc_centre(cells, spec, 0.75 * max(length, spec.resolution))
+    return None if arc is None else arc[1]
+
+
+def _same_arc(radius_a: float | None, radius_b: float | None) -> bool:
+    """Two pieces are arcs of circles whose radii differ by at most a quarter."""
+    return radius_a is not None and radius_b is not None and \
+        abs(radius_a - radius_b) <= 0.25 * max(radius_a, radius_b)
 
 
 def _cells_near(mask: NDArray[np.bool_], cells: NDArray[np.intp], radius: float) -> NDArray[np.intp]:
@@ -699,6 +702,8 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
 
     ba = [_piece_box(c, spec) if usable(c, dyn_a) else None for c in pieces_a]
     bb = [_piece_box(c, spec) if usable(c, dyn_b) else None for c in pieces_b]
+    arc_a: dict[int, float | None] = {}  # each piece's arc radius, fitted when first needed
+    arc_b: dict[int, float | None] = {}
     cands = []
     for i, pa in enumerate(ba):
         if pa is None or pa[1] > st.max_object_m:
@@ -713,9 +718,16 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
             turn = _box_turn(pa[3], pb[3])
             turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             q, legs = _shape_fit(pa[0], pb[0], turns, res)
-            if q >= st.unlabelled_fit and (legs >= st.min_fit_legs or _same_arc(pieces_a[i], pieces_b[j], pa[1], pb[1],
-                                                                               spec)):
-                cands.append((i, j, float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))))
+            if q < st.unlabelled_fit:
+                continue
+            if legs < st.min_fit_legs:  # a blob with no legs to fit: a pot, when both are arcs of one circle
+                if i not in arc_a:
+                    arc_a[i] = _piece_arc(pieces_a[i], pa[1], spec)
+                if j not in arc_b:
+                    arc_b[j] = _piece_arc(pieces_b[j], pb[1], spec)
+                if not _same_arc(arc_a[i], arc_b[j]):
+                    continue
+            cands.append((i, j, float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))))
     if not cands:
         return []
     # of the pairs that fit, the ones that move the least in all (two alike chairs swapped places is

@@ -238,7 +238,7 @@ def _worker_main(process: str, stage: str, parent_pid: int, levels: dict[str, in
 
         # workers share the machine's cores with each other: a library's own threads only take CPU
         # from the other stages (OpenBLAS's spin while they wait: in the loop closer's small products
-        # they tripled the registration worker's CPU time)
+        # they doubled the registration worker's CPU time)
         cv2.setNumThreads(1)
         threadpool_limits(1, user_api="blas")
         body(out, *args)

@@ -1129,7 +1129,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             max_r = 0.75 * max(*oa.src.size, *ob.src.size, 2.0 * res)
             arc_a, arc_b = _arc_centre(oa.cells, spec, max_r), _arc_centre(ob.cells, spec, max_r)
             round_obj = False
-            if arc_a is not None and arc_b is not None and abs(arc_a[1] - arc_b[1]) <= 0.25 * max(arc_a[1], arc_b[1]):
+            if arc_a is not None and arc_b is not None and _same_arc(arc_a[1], arc_b[1]):
                 from_c, new_c, turn, round_obj = arc_a[0], arc_b[0], 0.0, True
             disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)

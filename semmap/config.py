@@ -277,6 +277,17 @@ class SegmentationConfig(_Model):
     backend: str = Field("topic", description="'topic': label images recorded in the bag; 'folder': label PNGs; "
                                               "'onnx', 'ultralytics', 'sam3', 'mediapipe-selfie': models")
     classes_file: Path | None = Field(None, description="a class table replacing config/classes.yaml")
+    # which camera frames the model runs on (semmap.segment.select); the others cost no model time
+    select: Literal["all", "motion"] = Field(
+        "all", description="'all': every frame; 'motion': a frame once the robot has moved select_distance or "
+                           "turned select_angle since the last segmented one, or select_interval has passed")
+    select_distance: float = Field(0.3, gt=0, le=1000, description="select: motion: metres moved, m")
+    select_angle: float = Field(10.0, gt=0, le=360, description="select: motion: degrees turned, deg")
+    select_interval: float = Field(1.0, ge=0, le=3600, description="select: motion: a frame at least this often "
+                                                                   "(people move while the robot stands), s; 0: "
+                                                                   "never for time alone")
+    max_rate: float | None = Field(None, gt=0, description="a budget: at most this many frames segmented per "
+                                                           "second of tour, on average (null: no limit)")
 
     @model_validator(mode="after")
     def _backend_is_always_set(self) -> SegmentationConfig:

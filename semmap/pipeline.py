@@ -41,6 +41,7 @@ from .mapfolder.summary import (
     BuildSummary,
     ConsistencySummary,
     CountsSummary,
+    FrameSelectionSummary,
     MapSummary,
     MessagesSummary,
     OcclusionSummary,
@@ -53,7 +54,7 @@ from .mapfolder.summary import (
 )
 from .mapfolder.writer import MAP_FOLDER_VERSION, BuildOutcome, write_map_folder
 from .paint.painter import Painter
-from .paint.stream import ScanStream, open_build_tour, tour_class_names
+from .paint.stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 from .segment.base import backend_consumes
 from .segment.images import ImageSource, InProcessImages
 from .version import __version__
@@ -225,15 +226,16 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
         else:
             mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
         if tinfo.topics.image is not None:
+            odometry = selection_odometry(tinfo, cfg)
             if cfg.workers and not _images_are_light(cfg, msgtype):
                 intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
                 shape = (intr.height, intr.width) if intr is not None else None
-                images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape)
+                images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape, odometry=odometry)
             else:
-                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation)
+                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry)
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
-                          cfg.grid.no_return_range)
+                          cfg.grid.no_return_range, label_cell=cfg.grid.resolution)
         for part in (images, mapper):  # workers load their libraries before the clock starts
             if part is not None:
                 part.wait_ready()
@@ -338,11 +340,18 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
                                  odometry_out_of_order=(run.stream.odometry.out_of_order
                                                         if run.stream.odometry is not None else 0)),
         counts=CountsSummary(**run.counts, images=run.image_counts.get("images", 0),
-                             bad_images=run.image_counts.get("bad_images", 0)),
+                             bad_images=run.image_counts.get("bad_images", 0),
+                             skipped_images=run.image_counts.get("skipped_frames", 0)),
         painting=PaintingSummary(
             class_list=getattr(cfg.segmentation, "class_list", None) if class_names else None,
             backend=cfg.segmentation.backend if class_names else None,
             scans_painted=ps.painted,
+            frame_selection=FrameSelectionSummary(
+                select=cfg.segmentation.select, max_rate=cfg.segmentation.max_rate,
+                frames_segmented=run.image_counts.get("images", 0),
+                frames_skipped=run.image_counts.get("skipped_frames", 0),
+                scans_from_memory=ps.transferred, returns_labelled_from_memory=ps.points_transferred,
+            ) if class_names else None,
             readings_below_range_min_fraction=round(ps.below_range_min / max(ps.beams, 1), 4),
             readings_below_range_min_unblocked_fraction=round(ps.below_range_min_unblocked / max(ps.beams, 1), 4),
             readings_nan_fraction=round(ps.nan_readings / max(ps.beams, 1), 4),

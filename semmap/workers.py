@@ -61,7 +61,8 @@ from .config import GridConfig, LoopClosureConfig, RegistrationConfig, Segmentat
 from .errors import InternalError, SemmapError, WorkerError
 from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
-from .segment.images import ImageReader, ImageSource, InProcessImages
+from .segment.images import ImageReader, ImageSource, InProcessImages, OdometrySource
+from .segment.select import SkippedFrame
 
 if TYPE_CHECKING:
     from .grid import GridLayers
@@ -438,33 +439,41 @@ class _Workers:
 # Frames: decoding and segmentation
 
 def _images_body(out: Connection, freed: Connection, bag: str, topic: str, seg_cfg: dict[str, Any],
-                 shm_name: str | None, shape: tuple[int, int] | None) -> None:
-    """The image worker: segment every image of ``topic``; labels go into free shared-memory slots
-    (the caller hands each back on ``freed``), or through the pipe when none is free."""
+                 shm_name: str | None, shape: tuple[int, int] | None, odometry: OdometrySource | None) -> None:
+    """The image worker: segment the images of ``topic`` the selection takes; labels (and the backend's
+    instances) go into free shared-memory slots (the caller hands each back on ``freed``), or through the
+    pipe when none is free; a skipped frame is its stamp."""
     from multiprocessing import shared_memory
 
-    counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
+    counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
     shm = shared_memory.SharedMemory(name=shm_name) if shm_name else None
     images: ImageReader | None = None
     try:
         slots = None
         free: list[int] = []
         if shm is not None and shape is not None:
-            n = shm.size // (shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
-            slots = np.ndarray((n, *shape), np.uint16, buffer=shm.buf)
+            n = shm.size // (2 * shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
+            slots = np.ndarray((n, 2, *shape), np.uint16, buffer=shm.buf)  # per slot: label, instance
             free = list(range(n))
-        images = ImageReader(Path(bag), topic, segmentation_config(seg_cfg), counts)
+        images = ImageReader(Path(bag), topic, segmentation_config(seg_cfg), counts, odometry)
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in images:
+            if isinstance(seg, SkippedFrame):
+                out.send(("skipped", seg.stamp_ns))
+                continue
             while freed.poll():  # EOF here (the caller is gone) raises EOFError
                 free.append(freed.recv())
-            if slots is not None and seg.label.shape == slots.shape[1:] and free:
+            has_instance = seg.instance is not None
+            if slots is not None and seg.label.shape == slots.shape[2:] and free:
                 i = free.pop()
-                slots[i] = seg.label
-                out.send(("slot", seg.stamp_ns, i, seg.names))
+                slots[i, 0] = seg.label
+                if seg.instance is not None:
+                    slots[i, 1] = seg.instance
+                out.send(("slot", seg.stamp_ns, i, seg.names, has_instance))
             else:  # no free slot (the caller holds them all), or an image of another size: send it whole
-                out.send(("image", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names))
+                out.send(("image", seg.stamp_ns, np.ascontiguousarray(seg.label), seg.names,
+                          None if seg.instance is None else np.ascontiguousarray(seg.instance)))
         counts["peak_rss_mb"] = round(peak_rss_mb(), 1)
         counts["cpu_s"] = round(time.process_time() - cpu0, 3)
         out.send(("done", counts))
@@ -487,10 +496,11 @@ class ImageWorker:
     """
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 shape: tuple[int, int] | None = None, n_slots: int = 12) -> None:
+                 shape: tuple[int, int] | None = None, n_slots: int = 12,
+                 odometry: OdometrySource | None = None) -> None:
         from multiprocessing import shared_memory
 
-        self.counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
+        self.counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
         self._done = False
         self._slot_of: dict[int, int] = {}
         self._shm = None
@@ -499,12 +509,12 @@ class ImageWorker:
         try:
             if shape is not None:
                 _start_resource_tracker()
-                self._shm = shared_memory.SharedMemory(create=True, size=n_slots * shape[0] * shape[1] * 2)
-                self._slots = np.ndarray((n_slots, *shape), np.uint16, buffer=self._shm.buf)
+                self._shm = shared_memory.SharedMemory(create=True, size=n_slots * 2 * shape[0] * shape[1] * 2)
+                self._slots = np.ndarray((n_slots, 2, *shape), np.uint16, buffer=self._shm.buf)
             freed_r, self._freed = self._group.pipe(to_child=True)
             self._worker = self._group.add("semmap-images", "images", _images_body, freed_r, str(bag), topic,
                                            seg_cfg.model_dump(mode="json"), self._shm.name if self._shm else None,
-                                           shape)
+                                           shape, odometry)
             self._group.start()
         except BaseException:
             self.close()
@@ -516,26 +526,29 @@ class ImageWorker:
         if msg[0] != "ready":
             raise InternalError(f"the images worker sent {msg[0]!r} before 'ready'")
 
-    def next(self) -> Segmentation | None:
+    def next(self) -> Segmentation | SkippedFrame | None:
         if self._done:
             return None
         msg = self._group.recv(self._worker)
         if msg[0] == "slot":
-            _, stamp, i, names = msg
+            _, stamp, i, names, has_instance = msg
             assert self._slots is not None
-            seg = Segmentation(stamp, self._slots[i], names)  # a read-only view, no copy
+            # read-only views, no copy
+            seg = Segmentation(stamp, self._slots[i, 0], names, instance=self._slots[i, 1] if has_instance else None)
             self._slot_of[id(seg)] = i
             return seg
+        if msg[0] == "skipped":
+            return SkippedFrame(msg[1])
         if msg[0] == "image":
-            _, stamp, label, names = msg
-            return Segmentation(stamp, label, names)
+            _, stamp, label, names, instance = msg
+            return Segmentation(stamp, label, names, instance=instance)
         if msg[0] == "done":
             self.counts = msg[1]
             self._done = self._worker.finished = True
             return None
         raise InternalError(f"the images worker sent {msg[0]!r}")
 
-    def release(self, seg: Segmentation) -> None:
+    def release(self, seg: Segmentation | SkippedFrame) -> None:
         """The mapper is done with ``seg``: its slot may be reused."""
         i = self._slot_of.pop(id(seg), None)
         if i is not None:

@@ -28,7 +28,10 @@ from semmap.io.tour import load_build_config
 
 DATA = Path(__file__).parent / "data"
 
-#: the options each backend takes besides ``backend`` and ``classes_file``
+#: the frame selection's options, which every backend takes (segmentation.select)
+SELECT = {"select", "select_distance", "select_angle", "select_interval", "max_rate"}
+
+#: the options each backend takes besides ``backend``, ``classes_file`` and the frame selection's
 OPTIONS = {
     "topic": {"class_list"},
     "folder": {"class_list", "folder"},
@@ -125,7 +128,7 @@ def test_a_misspelt_key_or_a_wrong_value_is_one_line_naming_the_field(tmp_path, 
 @pytest.mark.parametrize("backend", sorted(OPTIONS))
 def test_each_backend_has_only_its_options(backend, tmp_path, caplog):
     model = SEGMENTATION_BACKENDS[backend]
-    assert set(model.model_fields) - {"backend", "classes_file"} == OPTIONS[backend]
+    assert set(model.model_fields) - {"backend", "classes_file", *SELECT} == OPTIONS[backend]
     others = set().union(*OPTIONS.values()) - OPTIONS[backend]
     for key in sorted(others):
         # in Python, an option the backend does not have is an error...

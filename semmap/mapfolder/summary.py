@@ -73,6 +73,8 @@ class CountsSummary(_Part):
     scans_out_of_order: int  # repeated or backwards stamps
     images: int  # camera images segmented
     bad_images: int  # camera images that could not be read or segmented
+    #: camera images the frame selection left out (segmentation.select, max_rate); None: written before it
+    skipped_images: int | None = None
 
 
 class OcclusionSummary(_Part):
@@ -83,10 +85,23 @@ class OcclusionSummary(_Part):
     scans_with_relabelled_points: int
 
 
+class FrameSelectionSummary(_Part):
+    """Which camera frames the model ran on (``segmentation.select``), and what the others' scans took."""
+
+    select: str
+    max_rate: float | None
+    frames_segmented: int
+    frames_skipped: int
+    #: scans paired with a skipped frame, which took labels cell by cell from the last segmented one
+    scans_from_memory: int
+    returns_labelled_from_memory: int
+
+
 class PaintingSummary(_Part):
     class_list: str | None
     backend: str | None
     scans_painted: int
+    frame_selection: FrameSelectionSummary | None = None  # None: written before frames were selected
     readings_below_range_min_fraction: float
     # None: not recorded (folders written before these were counted)
     readings_below_range_min_unblocked_fraction: float | None = None  # on beams not masked as blocked

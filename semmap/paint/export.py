@@ -29,7 +29,7 @@ from ..io.bag import OpenBag, read_bag
 from ..records import Mobility, PaintedScan, Scan, Segmentation
 from ..segment.images import InProcessImages
 from .painter import CameraView, Painter
-from .stream import ScanStream, open_build_tour, tour_class_names
+from .stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 
 __all__ = ["EXPORT_COLUMNS", "PaintExport", "PaintedPair", "export_painted", "iter_painted"]
 
@@ -104,15 +104,17 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     table = load_class_table(cfg.segmentation.classes_file)
     on = cfg.paint.with_occlusion_filter(True)
     off = cfg.paint.with_occlusion_filter(False)
-    painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range)
+    painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range,
+                      label_cell=cfg.grid.resolution)
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
-                          cfg.grid.no_return_range)
-    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation)
+                          cfg.grid.no_return_range, label_cell=cfg.grid.resolution)
+    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, selection_odometry(tinfo, cfg))
     try:
         for item in ScanStream(tinfo, cfg.sync, images, progress, bag=bag):
             raw = raw_painter.paint(item.scan, item.odometry, item.segmentation)
             filtered = painter.paint(item.scan, item.odometry, item.segmentation)
-            yield PaintedPair(item.scan, raw.painted, filtered.painted, filtered.view, item.segmentation)
+            seg = item.segmentation if isinstance(item.segmentation, Segmentation) else None  # None: not segmented
+            yield PaintedPair(item.scan, raw.painted, filtered.painted, filtered.view, seg)
     finally:
         images.close()
 

@@ -16,6 +16,12 @@ For each scan the painter
 
 Points that land outside the image, behind the camera, or on no image at all are
 ``unknown`` (mobility 0); points inside the image on no mask are ``static``.
+
+A scan paired with a frame the selection did not segment (``segmentation.select``,
+:class:`~semmap.segment.select.SkippedFrame`) is not painted from a mask: each return takes the label
+the last segmented frame's painted returns gave the same map cell (:class:`LabelMemory`, through the
+odometry), and stays ``unknown`` where that frame saw nothing. A person who walked on lands on cells
+that frame did not see and stays unlabelled rather than take a stale mask at the wrong place.
 """
 
 from __future__ import annotations
@@ -38,10 +44,11 @@ from ..geometry import (
     unproject_pixels,
 )
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
+from ..segment.select import SkippedFrame
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["BlockedBeams", "CameraView", "PaintResult", "PaintStats", "Painter"]
+__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter"]
 
 
 @dataclass(frozen=True)
@@ -89,6 +96,8 @@ class PaintStats:
     returns_beside_nan_far: int = 0
     # per beam layout seen in at least paint.blocked_min_scans scans: its beams masked as blocked (maybe none)
     blocked: dict[tuple[float, float, int], BlockedBeams] = field(default_factory=dict)
+    transferred: int = 0  # scans paired with a skipped frame that took labels from the last segmented one
+    points_transferred: int = 0  # returns that took a label so
     occlusion_relabelled: int = 0  # points on a mask the occlusion filter made unknown
     occlusion_max_per_scan: int = 0
     occlusion_scans: int = 0  # scans with at least one such point
@@ -214,6 +223,60 @@ def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
     return float(x0 - mx), float(x1 + mx), float(y0 - my), float(y1 + my)
 
 
+_OFF = 1 << 20  # cell indices are offset by this to pack two into one key (±52 km at 5 cm)
+
+
+class LabelMemory:
+    """The labels the last segmented frame gave, per map cell in the odometry frame.
+
+    The returns of every scan painted from one frame are added (:meth:`add`); a scan paired with a frame
+    that was not segmented looks its returns up (:meth:`lookup`): each takes the label most of that
+    frame's returns in its cell had, or none where the frame saw nothing there. A new segmented frame
+    starts the memory afresh.
+    """
+
+    def __init__(self, cell: float) -> None:
+        self.cell = float(cell)
+        self.frame_ns: int | None = None
+        self._parts: list[NDArray[np.int64]] = []  # per painted scan: key << 20 | label code
+        self._table: tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int16]] | None = None
+
+    def _keys(self, xy_odom: NDArray[np.float64]) -> NDArray[np.int64]:
+        ij = np.floor(xy_odom / self.cell).astype(np.int64) + _OFF
+        return (ij[:, 0] << 21) | ij[:, 1]
+
+    def add(self, frame_ns: int, xy_odom: NDArray[np.float64], mobility: NDArray[np.uint8],
+            class_id: NDArray[np.int16]) -> None:
+        """The labelled returns (odometry frame) of a scan painted from the frame stamped ``frame_ns``."""
+        if frame_ns != self.frame_ns:
+            self.frame_ns, self._parts = frame_ns, []
+        code = (mobility.astype(np.int64) << 16) | (class_id.astype(np.int64) + 1)
+        self._parts.append((self._keys(xy_odom) << 20) | code)
+        self._table = None
+
+    def _consolidated(self) -> tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int16]]:
+        if self._table is None:
+            pairs, counts = np.unique(np.concatenate(self._parts) if self._parts else np.zeros(0, np.int64),
+                                      return_counts=True)
+            keys = pairs >> 20
+            order = np.lexsort((-counts, keys))  # per cell, its most frequent label first
+            keys, pairs = keys[order], pairs[order]
+            first = np.r_[True, keys[1:] != keys[:-1]] if keys.size else np.zeros(0, bool)
+            code = pairs[first] & ((1 << 20) - 1)
+            self._table = (keys[first], (code >> 16).astype(np.uint8), ((code & 0xFFFF) - 1).astype(np.int16))
+        return self._table
+
+    def lookup(self, xy_odom: NDArray[np.float64]) -> tuple[NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int16]]:
+        """For each point (odometry frame): whether its cell has a label, its mobility and class."""
+        keys, mob, cls = self._consolidated()
+        q = self._keys(xy_odom)
+        if keys.size == 0:
+            return np.zeros(q.size, bool), np.zeros(q.size, np.uint8), np.full(q.size, -1, np.int16)
+        at = np.minimum(np.searchsorted(keys, q), keys.size - 1)
+        found = keys[at] == q
+        return found, np.where(found, mob[at], 0).astype(np.uint8), np.where(found, cls[at], -1).astype(np.int16)
+
+
 class Painter:
     """Paint scans with a calibrated camera's segmentations."""
 
@@ -226,6 +289,7 @@ class Painter:
         paint_cfg: PaintConfig,
         sync_cfg: SyncConfig,
         no_return_range: float,
+        label_cell: float = 0.05,
     ) -> None:
         self.T_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)
         self.calib = calibration
@@ -244,6 +308,9 @@ class Painter:
                 calibration.intrinsics.D)
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
+        #: the last segmented frame's labels per cell, for scans paired with a skipped frame (``label_cell``:
+        #: the map's resolution)
+        self.memory = LabelMemory(label_cell)
         self._layout_cache: _Layout | None = None
         self._beam_states: dict[tuple[float, float, int], _BeamState] = {}
         self._occlusion = paint_cfg.occlusion if paint_cfg.occlusion.filter else None
@@ -328,9 +395,10 @@ class Painter:
         """The time a painted scan's points are expressed at: its middle beam's."""
         return scan.stamp_ns + cls.beam_step_ns(scan) * (scan.ranges.size // 2)
 
-    def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | None) -> PaintResult:
-        """Paint one scan; ``seg`` is the segmentation of the image paired with it (or None), ``odom``
-        the odometry covering the scan's sweep and the image's time (or None)."""
+    def paint(self, scan: Scan, odom: OdomTrack | None, seg: Segmentation | SkippedFrame | None) -> PaintResult:
+        """Paint one scan; ``seg`` is the segmentation of the image paired with it (None: no image; a
+        :class:`SkippedFrame`: an image not segmented), ``odom`` the odometry covering the scan's sweep
+        and the image's time (or None)."""
         n = scan.ranges.size
         layout = self._layout(scan)
         pts_base, hit, ranges = self._beams(scan, layout)  # (N, 3) at each beam's own time
@@ -368,10 +436,21 @@ class Painter:
         class_id = np.full(n, -1, np.int16)
         instance = np.full(n, -1, np.int32)
         view = None
-        if seg is not None and self.calib is not None:
+        if isinstance(seg, Segmentation) and self.calib is not None:
             footprint = np.abs(ranges * scan.angle_increment)
             view = self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id,
                                       instance)
+            if view is not None and odom_pose is not None:
+                labelled = view.beams  # the returns that landed in the image, labelled or made unknown
+                keep = labelled[mobility[labelled] != Mobility.UNKNOWN]
+                self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
+        elif isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory.frame_ns is not None:
+            idx = np.flatnonzero(hit)
+            found, mob, cls = self.memory.lookup(se2_apply(odom_pose, xy[idx]))
+            mobility[idx[found]] = mob[found]
+            class_id[idx[found]] = cls[found]
+            self.stats.transferred += 1
+            self.stats.points_transferred += int(np.count_nonzero(found))
         painted = PaintedScan(
             stamp_ns=t_ref,
             origin=origin,

@@ -48,11 +48,12 @@ from ..io.bag import OpenBag, ReadStats, read_bag
 from ..io.tour import Tour, load_build_config, open_tour
 from ..records import Scan, Segmentation
 from ..segment.base import backend_consumes
-from ..segment.images import ImageSource
+from ..segment.images import ImageSource, OdometrySource
+from ..segment.select import SkippedFrame
 from .motion import OdomTrack
 from .painter import Painter
 
-__all__ = ["PairedScan", "ScanStream", "StreamCounts", "open_build_tour", "tour_class_names"]
+__all__ = ["PairedScan", "ScanStream", "StreamCounts", "open_build_tour", "selection_odometry", "tour_class_names"]
 
 ProgressFn = Callable[[int, int], None]
 
@@ -67,13 +68,14 @@ class PairedScan:
     """One scan and what it is painted with.
 
     ``segmentation``: the paired image's segmentation (None: no image within
-    ``sync.max_image_offset``, or the tour has no camera). ``odometry``: the odometry track around
+    ``sync.max_image_offset``, or the tour has no camera; a :class:`SkippedFrame`: the paired image was
+    not segmented, ``segmentation.select``). ``odometry``: the odometry track around
     the scan (None: the tour has no odometry); it is the stream's live track, valid until the next
     item is asked for.
     """
 
     scan: Scan
-    segmentation: Segmentation | None
+    segmentation: Segmentation | SkippedFrame | None
     odometry: OdomTrack | None
 
 
@@ -116,7 +118,7 @@ class ScanStream:
         self._odom_offset_ns = int(round(offset * 1e9)) if isinstance(offset, float) else 0
         #: seconds spent waiting for segmentations (a slow model shows here)
         self.wait_images_s = 0.0
-        self._segs: deque[Segmentation] = deque()
+        self._segs: deque[Segmentation | SkippedFrame] = deque()
         self._images_done = images is None
         self._pending: deque[tuple[int, Scan]] = deque()  # (bag time, scan)
         self._max_offset_ns = int(sync.max_image_offset * 1e9)
@@ -198,7 +200,7 @@ class ScanStream:
         if self.odometry is not None:
             self.odometry.trim(scan.stamp_ns - self._keep_odom_ns)  # forget what no future scan needs
 
-    def _segmentation(self, scan: Scan) -> Segmentation | None:
+    def _segmentation(self, scan: Scan) -> Segmentation | SkippedFrame | None:
         """The segmentation nearest the scan's middle, pulling images only as far as needed."""
         mid = scan.stamp_ns + (self._end_ns(scan) - scan.stamp_ns) // 2
         segs = self._segs
@@ -249,6 +251,16 @@ def open_build_tour(tour: str | Path, config: str | Path | BuildConfig | None = 
         seg_cfg = seg.model_copy(update={"class_list": tinfo.manifest["label_classes"]})
         cfg = cfg.model_copy(update={"segmentation": seg_cfg})
     return tinfo, cfg
+
+
+def selection_odometry(tour: Tour, cfg: BuildConfig) -> OdometrySource | None:
+    """What the frame selection (``segmentation.select``) reads the robot's motion from: the tour's
+    odometry, on the scans' clock (None: the tour has none)."""
+    if not tour.topics.odometry:
+        return None
+    offset = cfg.sync.odometry_offset
+    offset_ns = int(round(offset * 1e9)) if isinstance(offset, float) else 0
+    return OdometrySource(tour.topics.odometry, tour.topics.odometry_tf, offset_ns)
 
 
 def tour_class_names(tour: Tour, cfg: BuildConfig) -> tuple[str, ...]:

@@ -12,31 +12,47 @@ import contextlib
 import logging
 import time
 from collections.abc import Generator, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..config import SegmentationConfig
 from ..errors import SemmapError
 from ..records import Image, Segmentation
 from .base import Segmenter
+from .select import FrameSelector, SkippedFrame
 
-__all__ = ["ImageReader", "ImageSource", "InProcessImages"]
+if TYPE_CHECKING:
+    from ..io.tf import TfOdometry
+
+__all__ = ["ImageReader", "ImageSource", "InProcessImages", "OdometrySource", "SkippedFrame"]
 
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class OdometrySource:
+    """Where the frame selection reads the robot's motion: an Odometry topic, or ``/tf`` (``tf`` names the
+    odometry transform); ``offset_ns`` is added to its stamps (``sync.odometry_offset``)."""
+
+    topic: str
+    tf: TfOdometry | None = None
+    offset_ns: int = 0
+
+
 class ImageSource(Protocol):
-    """Segmentations of the camera topic, one per frame, in bag order."""
+    """Segmentations of the camera topic, one per frame, in bag order (a :class:`SkippedFrame` for a
+    frame the selection did not segment)."""
 
     counts: dict[str, Any]
 
     def wait_ready(self) -> None:
         """Block until the segmenter is loaded (start-up is not counted as work)."""
 
-    def next(self) -> Segmentation | None:
-        """The next segmentation; None after the last."""
+    def next(self) -> Segmentation | SkippedFrame | None:
+        """The next segmentation (or skipped frame); None after the last."""
 
-    def release(self, seg: Segmentation) -> None:
+    def release(self, seg: Segmentation | SkippedFrame) -> None:
         """The caller no longer needs ``seg`` (its memory may be reused)."""
 
     def close(self) -> None:
@@ -45,10 +61,15 @@ class ImageSource(Protocol):
 
 class ImageReader:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
-    here, before the first frame is asked for (start-up, not work), and released by :meth:`close`."""
+    here, before the first frame is asked for (start-up, not work), and released by :meth:`close`.
+
+    With a frame selection (``segmentation.select``, ``max_rate``) the frames it does not take come out
+    as :class:`SkippedFrame`, before the model sees them; ``odometry`` is read in the same pass for it.
+    ``counts`` gains ``images`` (segmented), ``skipped_frames``, ``bad_images`` and ``segment_ms``.
+    """
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 counts: dict[str, int]) -> None:
+                 counts: dict[str, int], odometry: OdometrySource | None = None) -> None:
         from ..io.bag import read_bag
         from .base import create_segmenter
 
@@ -60,29 +81,53 @@ class ImageReader:
         except BaseException:
             self._stack.close()
             raise
+        selector = FrameSelector(seg_cfg)
+        counts.setdefault("skipped_frames", 0)
+        if selector.trivial:
+            odometry = None
+        elif odometry is None:
+            log.info("segmentation.select: the tour has no odometry; a frame is segmented every %.1f s",
+                     seg_cfg.select_interval)
 
-        def bad(topic: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped, counted
-            counts["bad_images"] += 1
-            log.debug("skipped image on %s: %s", topic, exc)
+        def bad(what: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped, counted
+            if what == topic:
+                counts["bad_images"] += 1
+            log.debug("skipped a message on %s: %s", what, exc)
 
-        self._it = self._segmented(opened.records([topic], skip=bad), topic, segmenter, counts)
+        topics = [topic] if odometry is None else [topic, odometry.topic]
+        self._it = self._segmented(opened.records(topics, skip=bad), topic, segmenter, counts, selector, odometry)
 
     @staticmethod
-    def _segmented(images: Iterator[tuple[str, int, Image]], topic: str, segmenter: Segmenter,
-                counts: dict[str, int]) -> Generator[Segmentation, None, None]:
-        for _, _, img in images:
+    def _segmented(records: Iterator[tuple[str, int, Any]], topic: str, segmenter: Segmenter,
+                   counts: dict[str, int], selector: FrameSelector, odometry: OdometrySource | None,
+                   ) -> Generator[Segmentation | SkippedFrame, None, None]:
+        for what, _, record in records:
+            if what != topic:
+                assert odometry is not None
+                if odometry.tf is not None:
+                    for stamp, pose in odometry.tf.poses(record):
+                        selector.add_odometry(stamp + odometry.offset_ns, pose)
+                else:
+                    selector.add_odometry(record[0] + odometry.offset_ns, record[3])
+                continue
+            img: Image = record
+            if not selector.want(img.stamp_ns):
+                counts["skipped_frames"] += 1
+                yield SkippedFrame(img.stamp_ns)
+                continue
             t0 = time.perf_counter()
             try:
                 seg = segmenter.segment(img)
             except SemmapError as exc:  # an image the segmenter cannot take is skipped, counted
                 counts["bad_images"] += 1
+                selector.failed()
                 log.debug("skipped image on %s: %s", topic, exc)
                 continue
             counts["images"] += 1
             counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
             yield seg
 
-    def __iter__(self) -> Iterator[Segmentation]:
+    def __iter__(self) -> Iterator[Segmentation | SkippedFrame]:
         return self._it
 
     def close(self) -> None:
@@ -93,18 +138,19 @@ class ImageReader:
 class InProcessImages:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
-    def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig) -> None:
-        self.counts: dict[str, Any] = {"images": 0, "bad_images": 0, "segment_ms": 0}
-        self._source = ImageReader(bag, topic, seg_cfg, self.counts)
+    def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
+                 odometry: OdometrySource | None = None) -> None:
+        self.counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
+        self._source = ImageReader(bag, topic, seg_cfg, self.counts, odometry)
         self._it = iter(self._source)
 
-    def next(self) -> Segmentation | None:
+    def next(self) -> Segmentation | SkippedFrame | None:
         return next(self._it, None)
 
     def wait_ready(self) -> None:
         pass
 
-    def release(self, seg: Segmentation) -> None:
+    def release(self, seg: Segmentation | SkippedFrame) -> None:
         pass
 
     def close(self) -> None:

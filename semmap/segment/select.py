@@ -1,0 +1,112 @@
+"""Which camera frames the model runs on (``segmentation.select``).
+
+A map does not need every frame segmented: a view from nearly the same pose a moment ago adds
+almost nothing. The selection is made before the model runs, so a skipped frame costs no model
+time; the scans paired with a skipped frame take their labels from the last segmented frame through
+the odometry, cell by cell (:class:`semmap.paint.painter.LabelMemory`), and stay unlabelled where that
+frame did not see the same cells.
+
+* ``all``: every frame (the default).
+* ``motion``: the first frame, then a frame once the robot has moved ``select_distance`` or turned
+  ``select_angle`` since the last segmented one, or ``select_interval`` has passed (people move while
+  the robot stands still). Without odometry only the interval applies.
+* ``max_rate``: a budget on top of either, at most that many frames per second of tour on average
+  (a token bucket holding at most two frames: a frame the selection wants waits for a token).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import SegmentationConfig
+from ..geometry import wrap_angle
+
+__all__ = ["FrameSelector", "SkippedFrame"]
+
+#: the most frames the budget's bucket holds: a frame wanted after a quiet spell is not refused, and the
+#: average rate still holds over any few seconds
+_BUCKET = 2.0
+
+
+@dataclass(frozen=True)
+class SkippedFrame:
+    """A camera frame the selection did not segment: only its time, so scans are still paired with it."""
+
+    stamp_ns: int
+
+
+class FrameSelector:
+    """Decides, frame by frame in time order, whether the model runs on it.
+
+    ``add_odometry`` hands it the robot's odometry poses (x, y, yaw) as they are read; ``want`` then
+    judges a frame by the latest pose at or before its stamp.
+    """
+
+    def __init__(self, cfg: SegmentationConfig) -> None:
+        self.mode = cfg.select
+        self.distance = cfg.select_distance
+        self.angle = math.radians(cfg.select_angle)
+        self.interval_ns = int(cfg.select_interval * 1e9)
+        self.rate = cfg.max_rate
+        self._pose: NDArray[np.float64] | None = None  # the latest odometry pose
+        self._pose_ns: int | None = None
+        self._last_ns: int | None = None  # the last segmented frame: its stamp and pose
+        self._last_pose: NDArray[np.float64] | None = None
+        self._tokens = 1.0
+        self._tokens_ns: int | None = None
+        self._undo: tuple[int | None, NDArray[np.float64] | None] | None = None
+        self.selected = 0
+        self.skipped = 0
+
+    @property
+    def trivial(self) -> bool:
+        """Every frame is segmented: no odometry needed."""
+        return self.mode == "all" and self.rate is None
+
+    def add_odometry(self, stamp_ns: int, pose: NDArray[np.float64]) -> None:
+        if self._pose_ns is None or stamp_ns >= self._pose_ns:
+            self._pose, self._pose_ns = np.asarray(pose, np.float64), stamp_ns
+
+    def _moved(self, stamp_ns: int) -> bool:
+        if self._last_ns is None:
+            return True
+        if self.interval_ns > 0 and stamp_ns - self._last_ns >= self.interval_ns:
+            return True
+        if self._pose is None or self._last_pose is None:
+            return False
+        d = self._pose - self._last_pose
+        return bool(math.hypot(d[0], d[1]) >= self.distance or abs(float(wrap_angle(float(d[2])))) >= self.angle)
+
+    def _budget(self, stamp_ns: int) -> bool:
+        """Whether the budget has a frame to spend at ``stamp_ns`` (tokens accrue with bag time)."""
+        if self.rate is None:
+            return True
+        if self._tokens_ns is not None:
+            self._tokens = min(_BUCKET, self._tokens + max(0, stamp_ns - self._tokens_ns) * 1e-9 * self.rate)
+        self._tokens_ns = stamp_ns
+        return self._tokens >= 1.0
+
+    def want(self, stamp_ns: int) -> bool:
+        """Whether to segment the frame stamped ``stamp_ns`` (counted either way)."""
+        wanted = self.mode == "all" or self._moved(stamp_ns)
+        if wanted and self._budget(stamp_ns):
+            if self.rate is not None:
+                self._tokens -= 1.0
+            self._undo = (self._last_ns, self._last_pose)
+            self._last_ns, self._last_pose = stamp_ns, self._pose
+            self.selected += 1
+            return True
+        self.skipped += 1
+        return False
+
+    def failed(self) -> None:
+        """The frame just taken could not be segmented: the next one is judged as if it had not been taken
+        (its budget is spent)."""
+        if self._undo is not None:
+            self._last_ns, self._last_pose = self._undo
+            self._undo = None
+            self.selected -= 1

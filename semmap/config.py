@@ -278,14 +278,28 @@ class SegmentationConfig(_Model):
                                               "'onnx', 'ultralytics', 'sam3', 'mediapipe-selfie': models")
     classes_file: Path | None = Field(None, description="a class table replacing config/classes.yaml")
     # which camera frames the model runs on (semmap.segment.select); the others cost no model time
-    select: Literal["all", "motion"] = Field(
+    select: Literal["all", "motion", "need"] = Field(
         "all", description="'all': every frame; 'motion': a frame once the robot has moved select_distance or "
-                           "turned select_angle since the last segmented one, or select_interval has passed")
+                           "turned select_angle since the last segmented one, or select_interval has passed; "
+                           "'need': a frame when what it looks at lacks camera evidence (need_*)")
     select_distance: float = Field(0.3, gt=0, le=1000, description="select: motion: metres moved, m")
     select_angle: float = Field(10.0, gt=0, le=360, description="select: motion: degrees turned, deg")
-    select_interval: float = Field(1.0, ge=0, le=3600, description="select: motion: a frame at least this often "
-                                                                   "(people move while the robot stands), s; 0: "
-                                                                   "never for time alone")
+    select_interval: float | None = Field(None, ge=0, le=3600,
+                                          description="a frame at least this often, s (people move while the robot "
+                                                      "stands); 0: never for time alone; null: 1 s with 'motion', "
+                                                      "0 with 'need'")
+    transfer_window: float = Field(3.0, ge=0, le=3600,
+                                   description="a scan paired with a frame not segmented takes, per map cell, the "
+                                               "label of the latest segmented frame that saw the cell; a person's "
+                                               "label only within this, s")
+    need_frames: int = Field(2, ge=1, le=100, description="select: need: a cell has the camera evidence it needs "
+                                                          "once this many segmented frames in a row gave it one "
+                                                          "label")
+    need_cells: float = Field(2.0, gt=0, le=10000,
+                              description="select: need: segment a frame when the cells in its view lack this many "
+                                          "cells' worth of evidence (a cell on a small thing counts 1, one on a wall "
+                                          "0.1)")
+    need_cell: float = Field(0.25, gt=0, le=10, description="select: need: the cells evidence is counted in, m")
     max_rate: float | None = Field(None, gt=0, description="a budget: at most this many frames segmented per "
                                                            "second of tour, on average (null: no limit)")
 

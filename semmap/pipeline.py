@@ -53,6 +53,7 @@ from .mapfolder.summary import (
     TourTopics,
 )
 from .mapfolder.writer import MAP_FOLDER_VERSION, BuildOutcome, write_map_folder
+from .paint.need import make_selector, need_context
 from .paint.painter import Painter
 from .paint.stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 from .segment.base import backend_consumes
@@ -226,16 +227,19 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
         else:
             mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
         if tinfo.topics.image is not None:
-            odometry = selection_odometry(tinfo, cfg)
+            odometry, need = selection_odometry(tinfo, cfg), need_context(tinfo, cfg)
             if cfg.workers and not _images_are_light(cfg, msgtype):
                 intr = tinfo.calibration.intrinsics if tinfo.calibration is not None else None
                 shape = (intr.height, intr.width) if intr is not None else None
-                images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape, odometry=odometry)
+                images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape, odometry=odometry,
+                                     need=need)
             else:
-                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry)
+                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry,
+                                         make_selector(cfg.segmentation, odometry, need))
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
-                          cfg.grid.no_return_range, label_cell=cfg.grid.resolution)
+                          cfg.grid.no_return_range,
+                          label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
         for part in (images, mapper):  # workers load their libraries before the clock starts
             if part is not None:
                 part.wait_ready()

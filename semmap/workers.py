@@ -59,6 +59,7 @@ from numpy.typing import NDArray
 
 from .config import GridConfig, LoopClosureConfig, RegistrationConfig, SegmentationConfig, segmentation_config
 from .errors import InternalError, SemmapError, WorkerError
+from .paint.need import NeedContext, make_selector
 from .records import PaintedScan, Segmentation
 from .runtime import STOP_SIGNALS, peak_rss_mb, signals_held
 from .segment.images import ImageReader, ImageSource, InProcessImages, OdometrySource
@@ -439,7 +440,8 @@ class _Workers:
 # Frames: decoding and segmentation
 
 def _images_body(out: Connection, freed: Connection, bag: str, topic: str, seg_cfg: dict[str, Any],
-                 shm_name: str | None, shape: tuple[int, int] | None, odometry: OdometrySource | None) -> None:
+                 shm_name: str | None, shape: tuple[int, int] | None, odometry: OdometrySource | None,
+                 need: NeedContext | None) -> None:
     """The image worker: segment the images of ``topic`` the selection takes; labels (and the backend's
     instances) go into free shared-memory slots (the caller hands each back on ``freed``), or through the
     pipe when none is free; a skipped frame is its stamp."""
@@ -455,7 +457,8 @@ def _images_body(out: Connection, freed: Connection, bag: str, topic: str, seg_c
             n = shm.size // (2 * shape[0] * shape[1] * 2)  # the size may be rounded up to whole pages
             slots = np.ndarray((n, 2, *shape), np.uint16, buffer=shm.buf)  # per slot: label, instance
             free = list(range(n))
-        images = ImageReader(Path(bag), topic, segmentation_config(seg_cfg), counts, odometry)
+        cfg = segmentation_config(seg_cfg)
+        images = ImageReader(Path(bag), topic, cfg, counts, odometry, make_selector(cfg, odometry, need))
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in images:
@@ -497,7 +500,7 @@ class ImageWorker:
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
                  shape: tuple[int, int] | None = None, n_slots: int = 12,
-                 odometry: OdometrySource | None = None) -> None:
+                 odometry: OdometrySource | None = None, need: NeedContext | None = None) -> None:
         from multiprocessing import shared_memory
 
         self.counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
@@ -514,7 +517,7 @@ class ImageWorker:
             freed_r, self._freed = self._group.pipe(to_child=True)
             self._worker = self._group.add("semmap-images", "images", _images_body, freed_r, str(bag), topic,
                                            seg_cfg.model_dump(mode="json"), self._shm.name if self._shm else None,
-                                           shape, odometry)
+                                           shape, odometry, need)
             self._group.start()
         except BaseException:
             self.close()

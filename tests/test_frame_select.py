@@ -10,7 +10,7 @@ import pytest
 
 from semmap.config import OnnxSegmentation, TopicSegmentation
 from semmap.paint.painter import LabelMemory
-from semmap.records import Mobility
+from semmap.records import Mobility, Segmentation
 from semmap.segment.select import FrameSelector, SkippedFrame
 
 S = 1_000_000_000
@@ -64,18 +64,31 @@ def test_the_budget_holds_the_average_rate_whatever_the_selection_wants():
     assert max(np.diff(taken)) <= 8  # spread over the tour, not spent at its start
 
 
-def test_the_label_memory_takes_each_cells_majority_and_leaves_unseen_cells_unknown():
-    mem = LabelMemory(0.05)
-    xy = np.array([[1.01, 1.01], [1.02, 1.03], [1.04, 1.01], [2.0, 2.0]])
-    mob = np.array([Mobility.DYNAMIC, Mobility.DYNAMIC, Mobility.STATIC, Mobility.SEMI_STATIC], np.uint8)
-    cls = np.array([0, 0, -1, 3], np.int16)
-    mem.add(10, xy[:2], mob[:2], cls[:2])
-    mem.add(10, xy[2:], mob[2:], cls[2:])  # a second scan painted from the same frame
-    found, m, c = mem.lookup(np.array([[1.03, 1.04], [2.01, 2.02], [3.0, 3.0], [-1.01, -1.01]]))
-    assert found.tolist() == [True, True, False, False]
-    assert m.tolist() == [Mobility.DYNAMIC, Mobility.SEMI_STATIC, 0, 0] and c.tolist() == [0, 3, -1, -1]
-    mem.add(20, xy[3:], mob[3:], cls[3:])  # a new segmented frame: the memory starts afresh
-    assert mem.lookup(xy[:1])[0].tolist() == [False]
+def test_the_label_memory_transfers_furniture_once_two_frames_agree_and_a_person_briefly():
+    mem = LabelMemory(0.05, window_s=2.0)
+    person, wall, chair = ([[1.01, 1.01], [1.02, 1.03]], [[1.04, 1.01]], [[2.0, 2.0]])
+    query = np.array([[1.03, 1.04], [2.01, 2.02], [3.0, 3.0]])
+
+    def frame(t, pts, mobility, cls):
+        n = len(pts)
+        mem.add(t * S, np.array(pts), np.full(n, mobility, np.uint8), np.full(n, cls, np.int16))
+
+    frame(1, person + wall, Mobility.DYNAMIC, 0)  # two of the cell's three returns: a person
+    frame(1, chair, Mobility.SEMI_STATIC, 3)  # a second scan painted from the same frame
+    assert mem.lookup(S, query)[0].tolist() == [True, False, False]  # a person on one frame's word; furniture not
+    frame(2, person, Mobility.DYNAMIC, 0)
+    frame(2, chair, Mobility.SEMI_STATIC, 3)
+    found, m, c = mem.lookup(2 * S, query)
+    assert found.tolist() == [True, True, False]  # cells no frame saw stay unknown
+    assert m.tolist() == [Mobility.DYNAMIC, Mobility.SEMI_STATIC, 0] and c.tolist() == [0, 3, -1]
+    found, m, _ = mem.lookup(9 * S, query)  # the person's label holds 2 s; furniture's all tour
+    assert found.tolist() == [False, True, False]
+    frame(10, chair, Mobility.STATIC, -1)  # one frame saw the chair's cell as structure: undecided now
+    assert mem.lookup(10 * S, query)[0].tolist() == [False, False, False]
+    frame(11, chair, Mobility.STATIC, -1)
+    frame(12, chair, Mobility.STATIC, -1)
+    found, m, _ = mem.lookup(12 * S, query)
+    assert found.tolist() == [False, True, False] and m[1] == Mobility.STATIC
 
 
 def _score(tour, folder):
@@ -136,3 +149,80 @@ def test_the_image_worker_hands_over_instances_and_skipped_frames(demo_tour, tmp
     finally:
         worker.close()
         local.close()
+
+
+# ---------------------------------------------------------------------------------------
+# select: need, on a simulated room seen from a robot standing still
+
+
+def _need_world(person_at):
+    """Walls, a chair, and a person where ``person_at(t)`` says (None: nobody): the object table and labels."""
+    from semmap.classes import load_class_table
+    from semmap.sim.raycast import PartSet
+    from semmap.sim.world import Person, chair, wall
+
+    coco = load_class_table().names("coco")
+    objs = [wall(1, 6.0, -6.0, 6.0, 6.0), wall(2, -6.0, 6.0, 6.0, 6.0), wall(3, -6.0, -6.0, 6.0, -6.0),
+            chair(4, (3.5, -0.8, 0.0))]
+    labels = np.array([0, 0, 0, coco.index("chair") + 1, coco.index("person") + 1], np.uint16)
+
+    def at(t):
+        parts = [p for o in objs for p in o.parts]
+        owners = [i for i, o in enumerate(objs) for _ in o.parts]
+        xy = person_at(t)
+        if xy is not None:
+            body = Person(5, "p", np.array([xy])).parts_at(0.0)
+            parts += list(body)
+            owners += [len(objs)] * len(body)
+        return PartSet.build(parts, owners)
+
+    return at, labels, coco
+
+
+def _run_need(person_at, seconds=8.0, need_cells=2.0):
+    """The frames (s) the need selector takes: scans at 10 Hz, frames at 5 Hz, a robot standing still."""
+    from semmap.config import PaintConfig, SimCameraConfig, SimLidarConfig, SyncConfig
+    from semmap.geometry import se3_from_xyz_rpy, se3_inverse
+    from semmap.paint.need import NeedContext, NeedSelector
+    from semmap.records import Calibration, CameraIntrinsics, Scan
+    from semmap.sim.sensors import CameraSim, LidarSim
+
+    lcfg = SimLidarConfig(sweep=False, noise_std=0.0, dropout_prob=0.0, rate_hz=10.0)
+    ccfg = SimCameraConfig(noise_std=0.0)
+    t_base_lidar = se3_from_xyz_rpy(lcfg.mount.xyz, lcfg.mount.rpy)
+    calib = Calibration(CameraIntrinsics(640, 480, np.asarray(ccfg.K), np.zeros(5)),
+                        se3_inverse(se3_from_xyz_rpy(ccfg.mount.xyz, ccfg.mount.rpy)) @ t_base_lidar)
+    ctx = NeedContext("/scan", t_base_lidar, calib, PaintConfig(), SyncConfig(), 10.0, None)
+    from semmap.segment.select import OdometrySource
+
+    sel = NeedSelector(TopicSegmentation(select="need", need_cells=need_cells), OdometrySource("/odom"), ctx)
+    lidar, cam = LidarSim(lcfg), CameraSim(ccfg, 2.6, np.random.default_rng(0))
+    world, labels, coco = _need_world(person_at)
+    taken = []
+    for k in range(int(seconds * 10)):
+        t = k / 10
+        ps = world(t)
+        sel.on_record("/odom", (int(t * S), "odom", "base", np.zeros(3)))
+        r = lidar.cast(np.zeros(3), ps).ranges
+        sel.on_record("/scan", Scan(int(t * S), "laser", lidar.angle_min, lidar.angle_increment, r.astype(np.float32),
+                                    lcfg.range_min, lcfg.range_max))
+        if k % 2 == 0 and sel.want(int(t * S)):  # a frame with every other scan
+            frame = cam.render(np.zeros(3), ps, labels, np.random.default_rng(0))
+            sel.segmented(Segmentation(int(t * S), frame.label, coco))
+            taken.append(round(t, 1))
+    return taken
+
+
+def test_need_looks_again_only_until_a_place_is_decided():
+    taken = _run_need(lambda t: None)
+    # the first frame, and the next once the chair has stood a second (two frames in a row with one label)
+    assert taken == [0.0, 1.0]
+    assert _run_need(lambda t: None, need_cells=0.05) == [0.0, 1.0]  # ...however eager
+
+
+def test_need_looks_at_someone_who_stops_but_not_at_someone_walking_past():
+    walker = _run_need(lambda t: (2.5, -3.0 + 1.2 * t) if 2.0 <= t < 7.0 else None)
+    assert walker == [0.0, 1.0]  # nobody stays on a cell for a second: the cleaning drops them unlabelled
+    stander = _run_need(lambda t: (2.5, 0.6) if t >= 3.0 else None)
+    assert stander[:2] == [0.0, 1.0] and stander[2] == 4.0  # looked at once standing a second
+    assert len(stander) <= 4

@@ -57,7 +57,7 @@ def _build(args: argparse.Namespace, tour: Path):
 
 
 def _print_summary(result) -> None:
-    from ..mapfolder.report import consistency_line, registration_line
+    from ..mapfolder.report import camera_line, consistency_line, registration_line
 
     s = result.summary.model_dump(mode="json")
     m, th = s["map"], s["throughput"]
@@ -67,6 +67,8 @@ def _print_summary(result) -> None:
     hidden = (f", {occ['points_relabelled']} points hidden from the camera made unknown"
               if occ.get("on") and s["painting"]["scans_painted"] else "")
     out.print(f"  scans      {s['counts']['scans']} ({s['painting']['scans_painted']} with an image{hidden})")
+    if s["painting"].get("frame_selection"):
+        out.print(f"  camera     {camera_line(s)}")
     out.print(f"  poses      {registration_line(s['registration'])}")
     if s.get("consistency"):
         out.print(f"  agreement  {consistency_line(s['consistency'])}")

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from ..grid import CleanedMap, GridLayers
     from .writer import BuildOutcome
 
-__all__ = ["render_pictures", "semantic_image", "write_report"]
+__all__ = ["camera_line", "consistency_line", "registration_line", "render_pictures", "semantic_image", "write_report"]
 
 _FREE = (255, 255, 255)
 _UNKNOWN = (205, 205, 205)
@@ -192,6 +192,7 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         _occlusion_line(s['painting'].get('occlusion_filter')),
         "",
+        *([camera_line(s), ""] if s['painting'].get('frame_selection') else []),
         f"![classes]({pictures['classes']})",
         "",
         "## Timings",
@@ -243,6 +244,21 @@ def registration_line(r: dict[str, Any]) -> str:
     if r.get("odom_missing"):
         parts.append(f"{r['odom_missing']} scans without odometry")
     return f"{mode} ({text})" + (": " + ", ".join(parts) if parts else "")
+
+
+def camera_line(s: dict[str, Any]) -> str:
+    """The model's work, from a build summary: frames segmented of those read, the selection, the scans
+    labelled from earlier frames, and the share of the build spent waiting for the model."""
+    fs = s["painting"]["frame_selection"]
+    total = fs["frames_segmented"] + fs["frames_skipped"]
+    t = s["timings_s"]
+    loop = t.get("loop") or 0.0
+    wait = f"; waiting for it {100 * t.get('wait_images', 0.0) / loop:.0f} % of the build" if loop > 0 else ""
+    line = f"model ran on {fs['frames_segmented']} of {total} frames (select: {fs['select']}"
+    line += f", at most {fs['max_rate']:g} a second)" if fs.get("max_rate") else ")"
+    if fs["scans_from_memory"]:
+        line += f", {fs['scans_from_memory']} scans labelled from earlier frames"
+    return line + wait
 
 
 def consistency_line(c: dict[str, Any] | None) -> str:

@@ -28,6 +28,7 @@ from ..errors import BagError, ConfigError, OutputExistsError
 from ..io.bag import OpenBag, read_bag
 from ..records import Mobility, PaintedScan, Scan, Segmentation
 from ..segment.images import InProcessImages
+from .need import make_selector, need_context
 from .painter import CameraView, Painter
 from .stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 
@@ -105,10 +106,13 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     on = cfg.paint.with_occlusion_filter(True)
     off = cfg.paint.with_occlusion_filter(False)
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range,
-                      label_cell=cfg.grid.resolution)
+                      label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
-                          cfg.grid.no_return_range, label_cell=cfg.grid.resolution)
-    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, selection_odometry(tinfo, cfg))
+                          cfg.grid.no_return_range,
+                          label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
+    odometry = selection_odometry(tinfo, cfg)
+    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry,
+                             make_selector(cfg.segmentation, odometry, need_context(tinfo, cfg)))
     try:
         for item in ScanStream(tinfo, cfg.sync, images, progress, bag=bag):
             raw = raw_painter.paint(item.scan, item.odometry, item.segmentation)

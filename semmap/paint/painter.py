@@ -19,9 +19,10 @@ Points that land outside the image, behind the camera, or on no image at all are
 
 A scan paired with a frame the selection did not segment (``segmentation.select``,
 :class:`~semmap.segment.select.SkippedFrame`) is not painted from a mask: each return takes the label
-the last segmented frame's painted returns gave the same map cell (:class:`LabelMemory`, through the
-odometry), and stays ``unknown`` where that frame saw nothing. A person who walked on lands on cells
-that frame did not see and stays unlabelled rather than take a stale mask at the wrong place.
+the latest segmented frame that saw the same map cell gave it, within ``segmentation.transfer_window``
+(:class:`LabelMemory`, through the odometry), and stays ``unknown`` where no such frame saw anything. A
+person who walked on lands on cells no frame labelled and stays unlabelled rather than take a stale mask
+at the wrong place.
 """
 
 from __future__ import annotations
@@ -227,19 +228,28 @@ _OFF = 1 << 20  # cell indices are offset by this to pack two into one key (±52
 
 
 class LabelMemory:
-    """The labels the last segmented frame gave, per map cell in the odometry frame.
+    """What the segmented frames said of each map cell, in the odometry frame.
 
-    The returns of every scan painted from one frame are added (:meth:`add`); a scan paired with a frame
-    that was not segmented looks its returns up (:meth:`lookup`): each takes the label most of that
-    frame's returns in its cell had, or none where the frame saw nothing there. A new segmented frame
-    starts the memory afresh.
+    The labelled returns of every scan painted from a segmented frame are added (:meth:`add`); each frame
+    casts one vote per cell it saw (the label most of its returns there had), and a cell keeps the label
+    that has won the vote (a running majority: one vote up for the label in the lead, one down for any
+    other). A scan paired with a frame that was not segmented looks its returns up (:meth:`lookup`): each
+    takes its cell's label once that label leads by ``MIN_LEAD`` votes, and none otherwise (a cell seen by
+    one frame, or labelled one way and another). Structure and furniture stay where they are during a
+    tour, so their labels hold for the whole tour. People move: a cell whose vote a person leads takes the
+    ``dynamic`` label on one frame's word, and only ``window_s`` seconds after the last frame that gave it
+    (someone standing still goes from the map with fewer frames; someone who walked on leaves no label).
     """
 
-    def __init__(self, cell: float) -> None:
+    MIN_LEAD = 2
+
+    def __init__(self, cell: float, window_s: float = 3.0) -> None:
         self.cell = float(cell)
-        self.frame_ns: int | None = None
-        self._parts: list[NDArray[np.int64]] = []  # per painted scan: key << 20 | label code
-        self._table: tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int16]] | None = None
+        self.window_ns = int(window_s * 1e9)
+        self.frame_ns: int | None = None  # the latest frame added
+        self._cells: dict[int, list[int]] = {}  # key -> [label code in the lead, its lead, last frame's stamp]
+        self._pending: list[NDArray[np.int64]] = []  # the latest frame's (key << 20 | code), not yet merged
+        self._pruned_ns: int | None = None
 
     def _keys(self, xy_odom: NDArray[np.float64]) -> NDArray[np.int64]:
         ij = np.floor(xy_odom / self.cell).astype(np.int64) + _OFF
@@ -249,32 +259,61 @@ class LabelMemory:
             class_id: NDArray[np.int16]) -> None:
         """The labelled returns (odometry frame) of a scan painted from the frame stamped ``frame_ns``."""
         if frame_ns != self.frame_ns:
-            self.frame_ns, self._parts = frame_ns, []
+            self._merge()
+            self.frame_ns = frame_ns
         code = (mobility.astype(np.int64) << 16) | (class_id.astype(np.int64) + 1)
-        self._parts.append((self._keys(xy_odom) << 20) | code)
-        self._table = None
+        self._pending.append((self._keys(xy_odom) << 20) | code)
 
-    def _consolidated(self) -> tuple[NDArray[np.int64], NDArray[np.uint8], NDArray[np.int16]]:
-        if self._table is None:
-            pairs, counts = np.unique(np.concatenate(self._parts) if self._parts else np.zeros(0, np.int64),
-                                      return_counts=True)
-            keys = pairs >> 20
-            order = np.lexsort((-counts, keys))  # per cell, its most frequent label first
-            keys, pairs = keys[order], pairs[order]
-            first = np.r_[True, keys[1:] != keys[:-1]] if keys.size else np.zeros(0, bool)
-            code = pairs[first] & ((1 << 20) - 1)
-            self._table = (keys[first], (code >> 16).astype(np.uint8), ((code & 0xFFFF) - 1).astype(np.int16))
-        return self._table
+    def _merge(self) -> None:
+        """The latest frame's votes into the cells: per cell, the label most of its returns there had."""
+        if not self._pending or self.frame_ns is None:
+            self._pending = []
+            return
+        pairs, counts = np.unique(np.concatenate(self._pending), return_counts=True)
+        self._pending = []
+        keys = pairs >> 20
+        order = np.lexsort((-counts, keys))
+        keys, pairs = keys[order], pairs[order]
+        first = np.r_[True, keys[1:] != keys[:-1]]
+        t = self.frame_ns
+        cells = self._cells
+        for k, c in zip(keys[first].tolist(), (pairs[first] & ((1 << 20) - 1)).tolist()):
+            e = cells.get(k)
+            if e is None:
+                cells[k] = [c, 1, t]
+            elif e[0] == c:
+                e[1] += 1
+                e[2] = t
+            elif e[1] > 1:
+                e[1] -= 1
+                e[2] = t
+            else:
+                e[0], e[1], e[2] = c, 1, t
+        if self._pruned_ns is None or t - self._pruned_ns > self.window_ns:  # forget what no scan may use
+            self._cells = {k: v for k, v in cells.items()
+                           if t - v[2] <= self.window_ns or v[0] >> 16 != Mobility.DYNAMIC}
+            self._pruned_ns = t
 
-    def lookup(self, xy_odom: NDArray[np.float64]) -> tuple[NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int16]]:
-        """For each point (odometry frame): whether its cell has a label, its mobility and class."""
-        keys, mob, cls = self._consolidated()
-        q = self._keys(xy_odom)
-        if keys.size == 0:
-            return np.zeros(q.size, bool), np.zeros(q.size, np.uint8), np.full(q.size, -1, np.int16)
-        at = np.minimum(np.searchsorted(keys, q), keys.size - 1)
-        found = keys[at] == q
-        return found, np.where(found, mob[at], 0).astype(np.uint8), np.where(found, cls[at], -1).astype(np.int16)
+    def lookup(self, stamp_ns: int, xy_odom: NDArray[np.float64],
+               ) -> tuple[NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int16]]:
+        """For each point (odometry frame) of a scan at ``stamp_ns``: whether its cell has a label, its
+        mobility and class."""
+        self._merge()
+        n = xy_odom.shape[0]
+        found = np.zeros(n, bool)
+        code = np.zeros(n, np.int64)
+        cells, w, lead = self._cells, self.window_ns, self.MIN_LEAD
+        for i, k in enumerate(self._keys(xy_odom).tolist()):
+            v = cells.get(k)
+            if v is None:
+                continue
+            if v[0] >> 16 == Mobility.DYNAMIC:  # a person: one frame's word, for a short while
+                if abs(stamp_ns - v[2]) <= w:
+                    found[i], code[i] = True, v[0]
+            elif v[1] >= lead:
+                found[i], code[i] = True, v[0]
+        return found, np.where(found, code >> 16, 0).astype(np.uint8), np.where(found, (code & 0xFFFF) - 1,
+                                                                               -1).astype(np.int16)
 
 
 class Painter:
@@ -290,6 +329,7 @@ class Painter:
         sync_cfg: SyncConfig,
         no_return_range: float,
         label_cell: float = 0.05,
+        label_window: float = 3.0,
     ) -> None:
         self.T_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)
         self.calib = calibration
@@ -308,9 +348,9 @@ class Painter:
                 calibration.intrinsics.D)
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
-        #: the last segmented frame's labels per cell, for scans paired with a skipped frame (``label_cell``:
-        #: the map's resolution)
-        self.memory = LabelMemory(label_cell)
+        #: the segmented frames' labels per cell, for scans paired with a skipped frame (``label_cell``: the
+        #: map's resolution)
+        self.memory = LabelMemory(label_cell, label_window)
         self._layout_cache: _Layout | None = None
         self._beam_states: dict[tuple[float, float, int], _BeamState] = {}
         self._occlusion = paint_cfg.occlusion if paint_cfg.occlusion.filter else None
@@ -446,7 +486,7 @@ class Painter:
                 self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
         elif isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory.frame_ns is not None:
             idx = np.flatnonzero(hit)
-            found, mob, cls = self.memory.lookup(se2_apply(odom_pose, xy[idx]))
+            found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
             mobility[idx[found]] = mob[found]
             class_id[idx[found]] = cls[found]
             self.stats.transferred += 1

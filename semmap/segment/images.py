@@ -12,32 +12,18 @@ import contextlib
 import logging
 import time
 from collections.abc import Generator, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 from ..config import SegmentationConfig
 from ..errors import SemmapError
 from ..records import Image, Segmentation
 from .base import Segmenter
-from .select import FrameSelector, SkippedFrame
-
-if TYPE_CHECKING:
-    from ..io.tf import TfOdometry
+from .select import FrameSelector, OdometrySource, SkippedFrame
 
 __all__ = ["ImageReader", "ImageSource", "InProcessImages", "OdometrySource", "SkippedFrame"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class OdometrySource:
-    """Where the frame selection reads the robot's motion: an Odometry topic, or ``/tf`` (``tf`` names the
-    odometry transform); ``offset_ns`` is added to its stamps (``sync.odometry_offset``)."""
-
-    topic: str
-    tf: TfOdometry | None = None
-    offset_ns: int = 0
 
 
 class ImageSource(Protocol):
@@ -69,7 +55,8 @@ class ImageReader:
     """
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 counts: dict[str, int], odometry: OdometrySource | None = None) -> None:
+                 counts: dict[str, int], odometry: OdometrySource | None = None,
+                 selector: FrameSelector | None = None) -> None:
         from ..io.bag import read_bag
         from .base import create_segmenter
 
@@ -81,34 +68,28 @@ class ImageReader:
         except BaseException:
             self._stack.close()
             raise
-        selector = FrameSelector(seg_cfg)
+        if selector is None:
+            selector = FrameSelector(seg_cfg, odometry)
         counts.setdefault("skipped_frames", 0)
-        if selector.trivial:
-            odometry = None
-        elif odometry is None:
-            log.info("segmentation.select: the tour has no odometry; a frame is segmented every %.1f s",
-                     seg_cfg.select_interval)
+        if selector.mode == "motion" and selector.odometry is None:
+            log.info("segmentation.select: motion: the tour has no odometry; a frame is segmented every %.1f s",
+                     selector.interval_ns * 1e-9)
 
         def bad(what: str, exc: SemmapError) -> None:  # an image that cannot be decoded is skipped, counted
             if what == topic:
                 counts["bad_images"] += 1
             log.debug("skipped a message on %s: %s", what, exc)
 
-        topics = [topic] if odometry is None else [topic, odometry.topic]
-        self._it = self._segmented(opened.records(topics, skip=bad), topic, segmenter, counts, selector, odometry)
+        self._it = self._segmented(opened.records([topic, *selector.topics], skip=bad), topic, segmenter, counts,
+                                   selector)
 
     @staticmethod
     def _segmented(records: Iterator[tuple[str, int, Any]], topic: str, segmenter: Segmenter,
-                   counts: dict[str, int], selector: FrameSelector, odometry: OdometrySource | None,
+                   counts: dict[str, int], selector: FrameSelector,
                    ) -> Generator[Segmentation | SkippedFrame, None, None]:
         for what, _, record in records:
             if what != topic:
-                assert odometry is not None
-                if odometry.tf is not None:
-                    for stamp, pose in odometry.tf.poses(record):
-                        selector.add_odometry(stamp + odometry.offset_ns, pose)
-                else:
-                    selector.add_odometry(record[0] + odometry.offset_ns, record[3])
+                selector.on_record(what, record)
                 continue
             img: Image = record
             if not selector.want(img.stamp_ns):
@@ -125,6 +106,7 @@ class ImageReader:
                 continue
             counts["images"] += 1
             counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
+            selector.segmented(seg)
             yield seg
 
     def __iter__(self) -> Iterator[Segmentation | SkippedFrame]:
@@ -139,9 +121,9 @@ class InProcessImages:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 odometry: OdometrySource | None = None) -> None:
+                 odometry: OdometrySource | None = None, selector: FrameSelector | None = None) -> None:
         self.counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
-        self._source = ImageReader(bag, topic, seg_cfg, self.counts, odometry)
+        self._source = ImageReader(bag, topic, seg_cfg, self.counts, odometry, selector)
         self._it = iter(self._source)
 
     def next(self) -> Segmentation | SkippedFrame | None:

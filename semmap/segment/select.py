@@ -10,22 +10,33 @@ frame did not see the same cells.
 * ``motion``: the first frame, then a frame once the robot has moved ``select_distance`` or turned
   ``select_angle`` since the last segmented one, or ``select_interval`` has passed (people move while
   the robot stands still). Without odometry only the interval applies.
-* ``max_rate``: a budget on top of either, at most that many frames per second of tour on average
+* ``need``: a frame when what it looks at lacks camera evidence (:class:`semmap.paint.need.NeedSelector`).
+* ``max_rate``: a budget on top of any of them, at most that many frames per second of tour on average
   (a token bucket holding at most two frames: a frame the selection wants waits for a token).
+
+A selector sees the bag's records in bag order (:meth:`FrameSelector.on_record`: the odometry, and
+whatever else its :attr:`~FrameSelector.topics` name), is asked about each camera frame before the model
+runs (:meth:`~FrameSelector.want`), and is told what the model made of it
+(:meth:`~FrameSelector.segmented`, :meth:`~FrameSelector.failed`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..config import SegmentationConfig
 from ..geometry import wrap_angle
+from ..records import Segmentation
 
-__all__ = ["FrameSelector", "SkippedFrame"]
+if TYPE_CHECKING:
+    from ..io.tf import TfOdometry
+
+__all__ = ["FrameSelector", "OdometrySource", "SkippedFrame"]
 
 #: the most frames the budget's bucket holds: a frame wanted after a quiet spell is not refused, and the
 #: average rate still holds over any few seconds
@@ -39,19 +50,32 @@ class SkippedFrame:
     stamp_ns: int
 
 
-class FrameSelector:
-    """Decides, frame by frame in time order, whether the model runs on it.
+@dataclass(frozen=True)
+class OdometrySource:
+    """Where the frame selection reads the robot's motion: an Odometry topic, or ``/tf`` (``tf`` names the
+    odometry transform); ``offset_ns`` is added to its stamps (``sync.odometry_offset``)."""
 
-    ``add_odometry`` hands it the robot's odometry poses (x, y, yaw) as they are read; ``want`` then
-    judges a frame by the latest pose at or before its stamp.
+    topic: str
+    tf: TfOdometry | None = None
+    offset_ns: int = 0
+
+
+class FrameSelector:
+    """Decides, frame by frame in time order, whether the model runs on it (``all``, ``motion``, and the
+    budget; ``need`` is :class:`semmap.paint.need.NeedSelector`, built on this).
+
+    The odometry (``odometry``, read in the same pass as the images) gives the robot's pose; a frame is
+    judged by the latest pose at or before its stamp.
     """
 
-    def __init__(self, cfg: SegmentationConfig) -> None:
+    def __init__(self, cfg: SegmentationConfig, odometry: OdometrySource | None = None) -> None:
         self.mode = cfg.select
         self.distance = cfg.select_distance
         self.angle = math.radians(cfg.select_angle)
-        self.interval_ns = int(cfg.select_interval * 1e9)
+        interval = cfg.select_interval if cfg.select_interval is not None else (1.0 if cfg.select == "motion" else 0.0)
+        self.interval_ns = int(interval * 1e9)
         self.rate = cfg.max_rate
+        self.odometry = None if self.trivial else odometry
         self._pose: NDArray[np.float64] | None = None  # the latest odometry pose
         self._pose_ns: int | None = None
         self._last_ns: int | None = None  # the last segmented frame: its stamp and pose
@@ -64,8 +88,23 @@ class FrameSelector:
 
     @property
     def trivial(self) -> bool:
-        """Every frame is segmented: no odometry needed."""
+        """Every frame is segmented: nothing else needs reading."""
         return self.mode == "all" and self.rate is None
+
+    @property
+    def topics(self) -> list[str]:
+        """The topics it reads besides the camera's."""
+        return [self.odometry.topic] if self.odometry is not None else []
+
+    def on_record(self, topic: str, record: Any) -> None:
+        """A record of one of :attr:`topics`, in bag order."""
+        odo = self.odometry
+        if odo is not None and topic == odo.topic:
+            if odo.tf is not None:
+                for stamp, pose in odo.tf.poses(record):
+                    self.add_odometry(stamp + odo.offset_ns, pose)
+            else:
+                self.add_odometry(record[0] + odo.offset_ns, record[3])
 
     def add_odometry(self, stamp_ns: int, pose: NDArray[np.float64]) -> None:
         if self._pose_ns is None or stamp_ns >= self._pose_ns:
@@ -90,10 +129,13 @@ class FrameSelector:
         self._tokens_ns = stamp_ns
         return self._tokens >= 1.0
 
+    def wanted(self, stamp_ns: int) -> bool:
+        """Whether the selection (budget aside) wants the frame stamped ``stamp_ns`` segmented."""
+        return self.mode == "all" or self._moved(stamp_ns)
+
     def want(self, stamp_ns: int) -> bool:
-        """Whether to segment the frame stamped ``stamp_ns`` (counted either way)."""
-        wanted = self.mode == "all" or self._moved(stamp_ns)
-        if wanted and self._budget(stamp_ns):
+        """Whether to segment the frame stamped ``stamp_ns``, budget included; counted either way."""
+        if self.wanted(stamp_ns) and self._budget(stamp_ns):
             if self.rate is not None:
                 self._tokens -= 1.0
             self._undo = (self._last_ns, self._last_pose)
@@ -102,6 +144,9 @@ class FrameSelector:
             return True
         self.skipped += 1
         return False
+
+    def segmented(self, seg: Segmentation) -> None:
+        """What the model made of the frame just taken."""
 
     def failed(self) -> None:
         """The frame just taken could not be segmented: the next one is judged as if it had not been taken

@@ -93,10 +93,17 @@ class _Trace:
     def __init__(self) -> None:
         self._stamps = array("q")
         self._odom = array("d")  # x, y, yaw per scan; NaN where there was no odometry
+        self._labels = array("B")  # LABELS_*: where the scan's labels came from
 
-    def add(self, stamp_ns: int, odom_pose: NDArray[np.float64] | None) -> None:
+    def add(self, stamp_ns: int, odom_pose: NDArray[np.float64] | None, labels: int = 0) -> None:
         self._stamps.append(stamp_ns)
         self._odom.extend(_NO_ODOM if odom_pose is None else odom_pose.tolist())
+        self._labels.append(labels)
+
+    @property
+    def labels(self) -> NDArray[np.uint8]:
+        """(N,) per scan: 0 no labels, 1 painted from a segmented frame, 2 from earlier frames' labels."""
+        return np.frombuffer(self._labels, np.uint8).copy() if self._labels else np.zeros(0, np.uint8)
 
     @property
     def stamps(self) -> NDArray[np.int64]:
@@ -263,6 +270,7 @@ def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, image
     cpu_loop = time.process_time()
     for item in stream:
         t0 = time.perf_counter()
+        transferred = painter.stats.transferred
         try:
             res = painter.paint(item.scan, item.odometry, item.segmentation)
         except BagError as exc:  # a label image that does not fit the calibration
@@ -279,7 +287,8 @@ def _stream(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, painter: Painter, image
         cls = cls[cls >= 0]
         if cls.size:
             class_hits += np.bincount(cls, minlength=n_classes)[:n_classes]
-        trace.add(res.painted.stamp_ns, res.odom_pose)
+        trace.add(res.painted.stamp_ns, res.odom_pose,
+                  1 if res.view is not None else 2 if painter.stats.transferred > transferred else 0)
     t_wait = time.perf_counter()
     result = mapper.finish()
     timers.hand_over += time.perf_counter() - t_wait  # waiting for the mapping workers to catch up
@@ -410,7 +419,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
         consistency=consistency,
     )
     return BuildOutcome(config=cfg, class_names=class_names, layers=layers, cleaned=cleaned, stamps_ns=stamps,
-                        poses=poses, odometry=odom, summary=summary, started=t_start)
+                        poses=poses, odometry=odom, summary=summary, started=t_start, labels_from=run.trace.labels)
 
 
 def _effective_config(tinfo: Tour, cfg: BuildConfig) -> BuildConfig:

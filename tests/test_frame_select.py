@@ -107,6 +107,10 @@ def test_a_build_selecting_by_motion_runs_fewer_frames_and_keeps_the_map(demo_to
     assert fs.frames_segmented + fs.frames_skipped == n_all
     assert res.summary.counts.images == fs.frames_segmented < 0.75 * n_all
     assert fs.scans_from_memory > 0 and fs.returns_labelled_from_memory > 0
+    report = (res.out / "report.md").read_text()
+    assert f"Model ran on {fs.frames_segmented} of {n_all} frames (select: motion)" in report
+    assert "![where the model ran](report/frames.png)" in report and (res.out / "report" / "frames.png").is_file()
+    assert not (demo_map.out / "report" / "frames.png").exists()  # every frame segmented: nothing to show
     s_all, s_mot = _score(demo_tour.out, demo_map.out), _score(demo_tour.out, res.out)
     assert s_mot["standing_left"] == s_all["standing_left"] == 0.0  # the standing person is gone
     assert s_mot["ghost_rate"] <= s_all["ghost_rate"] + 0.005

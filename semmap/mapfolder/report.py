@@ -19,6 +19,8 @@ from ..palette import MOBILITY_COLORS, class_color, rgb01
 from ..records import Mobility
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
     from ..grid import CleanedMap, GridLayers
     from .writer import BuildOutcome
 
@@ -149,7 +151,37 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
     fig.tight_layout()
     fig.savefig(out / "report" / "classes.png")
     plt.close(fig)
-    return {"semantic": "semantic.png", "trajectory": "report/trajectory.png", "classes": "report/classes.png"}
+    pictures = {"semantic": "semantic.png", "trajectory": "report/trajectory.png", "classes": "report/classes.png"}
+    fs = painting.frame_selection
+    src = outcome.labels_from
+    selected = fs is not None and (fs.select != "all" or fs.max_rate is not None)
+    if fs is not None and selected and src is not None and src.size == len(poses):
+        _frames_picture(out / "report" / "frames.png", cleaned, extent, poses, src, fs.select)
+        pictures["frames"] = "report/frames.png"
+    return pictures
+
+
+def _frames_picture(path: Path, cleaned: CleanedMap, extent: tuple[float, float, float, float],
+                    poses: NDArray[np.float64], labels_from: NDArray[np.uint8], select: str) -> None:
+    """The robot's path, marked where its scans were painted from a segmented frame and where they took
+    earlier frames' labels (``segmentation.select``)."""
+    fig, ax = plt.subplots(figsize=(8, 6), dpi=100)
+    ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
+              cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+    ax.plot(poses[:, 0], poses[:, 1], "-", color="0.6", lw=0.8, label="robot path")
+    for value, colour, size, label in ((2, "#4363d8", 4, "scan labelled from earlier frames"),
+                                       (1, "#e6194b", 9, "scan painted from a segmented frame")):
+        k = labels_from == value
+        if k.any():
+            ax.scatter(poses[k, 0], poses[k, 1], s=size, color=colour, label=f"{label} ({int(k.sum())})", zorder=3)
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"where the model ran (segmentation.select: {select})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
 
 
 def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> None:
@@ -192,7 +224,8 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "",
         _occlusion_line(s['painting'].get('occlusion_filter')),
         "",
-        *([camera_line(s), ""] if s['painting'].get('frame_selection') else []),
+        *([camera_line(s).capitalize() + ".", ""] if s['painting'].get('frame_selection') else []),
+        *([f"![where the model ran]({pictures['frames']})", ""] if "frames" in pictures else []),
         f"![classes]({pictures['classes']})",
         "",
         "## Timings",

@@ -63,6 +63,8 @@ class BuildOutcome:
     odometry: NDArray[np.float64]
     summary: BuildSummary
     started: float
+    #: (N,) per scan: 0 no labels, 1 painted from a segmented frame, 2 labelled from earlier frames (None: unknown)
+    labels_from: NDArray[np.uint8] | None = None
 
 
 def write_map_folder(out: Path, outcome: BuildOutcome) -> BuildSummary:

@@ -54,7 +54,7 @@ from .mapfolder.summary import (
 )
 from .mapfolder.writer import MAP_FOLDER_VERSION, BuildOutcome, write_map_folder
 from .paint.need import make_selector, need_context
-from .paint.painter import Painter
+from .paint.painter import Painter, label_memory
 from .paint.stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 from .segment.base import backend_consumes
 from .segment.images import ImageSource, InProcessImages
@@ -246,7 +246,7 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,
                           cfg.grid.no_return_range,
-                          label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
+                          memory=label_memory(cfg.segmentation, cfg.grid.resolution))
         for part in (images, mapper):  # workers load their libraries before the clock starts
             if part is not None:
                 part.wait_ready()

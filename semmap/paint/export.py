@@ -29,7 +29,7 @@ from ..io.bag import OpenBag, read_bag
 from ..records import Mobility, PaintedScan, Scan, Segmentation
 from ..segment.images import InProcessImages
 from .need import make_selector, need_context
-from .painter import CameraView, Painter
+from .painter import CameraView, Painter, label_memory
 from .stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 
 __all__ = ["EXPORT_COLUMNS", "PaintExport", "PaintedPair", "export_painted", "iter_painted"]
@@ -106,10 +106,9 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     on = cfg.paint.with_occlusion_filter(True)
     off = cfg.paint.with_occlusion_filter(False)
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range,
-                      label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
+                      memory=label_memory(cfg.segmentation, cfg.grid.resolution))
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
-                          cfg.grid.no_return_range,
-                          label_cell=cfg.grid.resolution, label_window=cfg.segmentation.transfer_window)
+                          cfg.grid.no_return_range, memory=label_memory(cfg.segmentation, cfg.grid.resolution))
     odometry = selection_odometry(tinfo, cfg)
     images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry,
                              make_selector(cfg.segmentation, odometry, need_context(tinfo, cfg)))

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..classes import ClassTable
-from ..config import PaintConfig, SyncConfig
+from ..config import PaintConfig, SegmentationConfig, SyncConfig
 from ..errors import BagError
 from ..geometry import (
     project_points,
@@ -49,7 +49,7 @@ from ..segment.select import SkippedFrame
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter"]
+__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter", "label_memory"]
 
 
 @dataclass(frozen=True)
@@ -316,6 +316,14 @@ class LabelMemory:
                                                                                -1).astype(np.int16)
 
 
+def label_memory(seg: SegmentationConfig, resolution: float) -> LabelMemory | None:
+    """The label memory a build with segmentation settings ``seg`` and map cells of ``resolution`` needs
+    (None: every frame is segmented)."""
+    if seg.select == "all" and seg.max_rate is None:
+        return None
+    return LabelMemory(resolution, seg.transfer_window)
+
+
 class Painter:
     """Paint scans with a calibrated camera's segmentations."""
 
@@ -328,8 +336,7 @@ class Painter:
         paint_cfg: PaintConfig,
         sync_cfg: SyncConfig,
         no_return_range: float,
-        label_cell: float = 0.05,
-        label_window: float = 3.0,
+        memory: LabelMemory | None = None,
     ) -> None:
         self.T_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)
         self.calib = calibration
@@ -348,9 +355,9 @@ class Painter:
                 calibration.intrinsics.D)
             self._px_max = np.array([calibration.intrinsics.width - 1, calibration.intrinsics.height - 1], np.intp)
         self.stats = PaintStats()
-        #: the segmented frames' labels per cell, for scans paired with a skipped frame (``label_cell``: the
-        #: map's resolution)
-        self.memory = LabelMemory(label_cell, label_window)
+        #: the segmented frames' labels per cell, for scans paired with a skipped frame (None: every frame is
+        #: segmented, nothing to keep; :func:`label_memory`)
+        self.memory = memory
         self._layout_cache: _Layout | None = None
         self._beam_states: dict[tuple[float, float, int], _BeamState] = {}
         self._occlusion = paint_cfg.occlusion if paint_cfg.occlusion.filter else None
@@ -480,11 +487,12 @@ class Painter:
             footprint = np.abs(ranges * scan.angle_increment)
             view = self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id,
                                       instance)
-            if view is not None and odom_pose is not None:
+            if view is not None and odom_pose is not None and self.memory is not None:
                 labelled = view.beams  # the returns that landed in the image, labelled or made unknown
                 keep = labelled[mobility[labelled] != Mobility.UNKNOWN]
                 self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
-        elif isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory.frame_ns is not None:
+        elif (isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory is not None
+              and self.memory.frame_ns is not None):
             idx = np.flatnonzero(hit)
             found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
             mobility[idx[found]] = mob[found]

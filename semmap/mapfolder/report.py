@@ -163,22 +163,35 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
 
 def _frames_picture(path: Path, cleaned: CleanedMap, extent: tuple[float, float, float, float],
                     poses: NDArray[np.float64], labels_from: NDArray[np.uint8], select: str) -> None:
-    """The robot's path, marked where its scans were painted from a segmented frame and where they took
-    earlier frames' labels (``segmentation.select``)."""
-    fig, ax = plt.subplots(figsize=(8, 6), dpi=100)
+    """The robot's path, coloured by the share of its scans painted from a segmented frame over the last
+    few metres (``segmentation.select``): where the model ran, and where earlier frames' labels served."""
+    from matplotlib.collections import LineCollection
+
+    fig, ax = plt.subplots(figsize=(9, 6), dpi=100)
     ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
               cmap="gray", vmin=0, vmax=1, interpolation="nearest")
-    ax.plot(poses[:, 0], poses[:, 1], "-", color="0.6", lw=0.8, label="robot path")
-    for value, colour, size, label in ((2, "#4363d8", 4, "scan labelled from earlier frames"),
-                                       (1, "#e6194b", 9, "scan painted from a segmented frame")):
-        k = labels_from == value
-        if k.any():
-            ax.scatter(poses[k, 0], poses[k, 1], s=size, color=colour, label=f"{label} ({int(k.sum())})", zorder=3)
+    fresh = (labels_from == 1).astype(np.float64)
+    # the share over a window of about a metre of path (at least 5 scans), so a dense camera reads as well
+    # as a sparse one
+    step = np.r_[0.0, np.hypot(*np.diff(poses[:, :2], axis=0).T)]
+    along = np.cumsum(step)
+    lo = np.searchsorted(along, along - 0.5)
+    hi = np.searchsorted(along, along + 0.5, side="right")
+    lo, hi = np.minimum(lo, np.maximum(hi - 5, 0)), np.maximum(hi, np.minimum(lo + 5, len(along)))
+    c = np.r_[0.0, np.cumsum(fresh)]
+    share = (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+    seg = np.stack([poses[:-1, :2], poses[1:, :2]], axis=1)
+    lines = LineCollection(list(seg), cmap="plasma", norm=plt.Normalize(0.0, 1.0), linewidths=4.0)
+    lines.set_array(share[1:])
+    ax.add_collection(lines)
+    bar = fig.colorbar(lines, ax=ax, fraction=0.035, pad=0.02, shrink=0.7)
+    bar.set_label("share of scans painted from a segmented frame", fontsize=8)
+    n1, n2 = int((labels_from == 1).sum()), int((labels_from == 2).sum())
     ax.set_aspect("equal")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"where the model ran (segmentation.select: {select})", fontsize=10)
+    ax.set_title(f"where the model ran (segmentation.select: {select})\n{n1} scans painted from a segmented "
+                 f"frame, {n2} from earlier frames' labels", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)

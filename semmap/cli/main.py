@@ -69,8 +69,20 @@ def _setup_logging(verbose: int) -> None:
     logging.getLogger("semmap").setLevel(level)
 
 
+def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+    """After a stop signal: what a half-built object's ``__del__`` raises while the stack unwinds (a
+    ``ZipFile`` cut short inside ``np.savez``) is logged at debug level, not printed as a traceback."""
+    logging.getLogger("semmap").debug("while stopping, ignored in %r: %s", unraisable.object, unraisable.exc_value)
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
+    sys.unraisablehook = _quiet_unraisable
     raise Interrupted(signum)
+
+
+def _raise_keyboard_interrupt(signum: int, frame: object) -> None:
+    sys.unraisablehook = _quiet_unraisable
+    raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
@@ -85,6 +97,8 @@ def _stop_signals_raise() -> Iterator[None]:
             sig = getattr(signal, name, None)
             if sig is not None:
                 old[sig] = signal.signal(sig, _raise_interrupted)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # Ctrl-C: KeyboardInterrupt, as ever
+            old[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
     try:
         yield
     finally:

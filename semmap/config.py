@@ -290,8 +290,8 @@ class SegmentationConfig(_Model):
                                                       "0 with 'need'")
     transfer_window: float = Field(3.0, ge=0, le=3600,
                                    description="a scan paired with a frame not segmented takes, per map cell, the "
-                                               "label of the latest segmented frame that saw the cell; a person's "
-                                               "label only within this, s")
+                                               "label the segmented frames voted for; a person's label only this "
+                                               "long after the frame that gave it, s")
     need_frames: int = Field(2, ge=1, le=100, description="select: need: a cell has the camera evidence it needs "
                                                           "once this many segmented frames in a row gave it one "
                                                           "label")

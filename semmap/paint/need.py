@@ -38,7 +38,7 @@ from ..geometry import se2_apply
 from ..io.tour import Tour
 from ..records import Calibration, Mobility, Scan, Segmentation
 from ..segment.select import FrameSelector, OdometrySource
-from .painter import Painter
+from .painter import Painter, cell_keys, label_codes, majority_labels
 
 __all__ = ["NeedContext", "NeedSelector", "make_selector", "need_context"]
 
@@ -162,8 +162,7 @@ class NeedSelector(FrameSelector):
 
     def _keys(self, xy_base: NDArray[np.float64]) -> NDArray[np.int64]:
         assert self._scan_pose is not None
-        ij = np.floor(se2_apply(self._scan_pose, xy_base) / self.cell).astype(np.int64) + (1 << 20)
-        return (ij[:, 0] << 21) | ij[:, 1]
+        return cell_keys(se2_apply(self._scan_pose, xy_base), self.cell)
 
     def _in_view(self) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
         """The latest scan's returns the camera sees: their evidence keys (cell, and whether on a small thing:
@@ -220,15 +219,9 @@ class NeedSelector(FrameSelector):
             return
         small = _on_small_things(p.points[p.hit], p.origin, self._scan.angle_increment)[on[p.hit]]
         keys = (self._keys(p.points[on]) << 1) | small
-        code = (p.mobility[on].astype(np.int64) << 16) | (p.class_id[on].astype(np.int64) + 1)
-        # one label per cell and frame: the most frequent of its returns'
-        pairs, counts = np.unique((keys << 20) | code, return_counts=True)
-        cell = pairs >> 20
-        order = np.lexsort((-counts, cell))
-        cell, pairs = cell[order], pairs[order]
-        first = np.r_[True, cell[1:] != cell[:-1]]
         ev = self._evidence
-        for q, c in zip(cell[first].tolist(), (pairs[first] & ((1 << 20) - 1)).tolist()):
+        # one label per cell and frame: the most frequent of its returns'
+        for q, c in zip(*majority_labels(keys, label_codes(p.mobility[on], p.class_id[on]))):
             e = ev.get(q)
             if e is None or e[1] != c:
                 ev[q] = [1, c]

@@ -49,7 +49,8 @@ from ..segment.select import SkippedFrame
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter", "label_memory"]
+__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter", "cell_keys",
+           "label_codes", "label_memory", "majority_labels"]
 
 
 @dataclass(frozen=True)
@@ -227,6 +228,27 @@ def _normalised_bounds(calib: Calibration) -> tuple[float, float, float, float]:
 _OFF = 1 << 20  # cell indices are offset by this to pack two into one key (±52 km at 5 cm)
 
 
+def cell_keys(xy: NDArray[np.float64], cell: float) -> NDArray[np.int64]:
+    """The ``cell``-sized square each (N, 2) point lies in, packed into one int64 per point (42 bits)."""
+    ij = np.floor(xy / cell).astype(np.int64) + _OFF
+    return (ij[:, 0] << 21) | ij[:, 1]
+
+
+def label_codes(mobility: NDArray[np.uint8], class_id: NDArray[np.int16]) -> NDArray[np.int64]:
+    """Mobility and class packed into one code per return (< 2**20); :func:`majority_labels` votes on them."""
+    return (mobility.astype(np.int64) << 16) | (class_id.astype(np.int64) + 1)
+
+
+def majority_labels(keys: NDArray[np.int64], codes: NDArray[np.int64]) -> tuple[list[int], list[int]]:
+    """Per key (< 2**43), the label code most of its returns have: the keys and their codes."""
+    pairs, counts = np.unique((keys << 20) | codes, return_counts=True)
+    cell = pairs >> 20
+    order = np.lexsort((-counts, cell))
+    cell, pairs = cell[order], pairs[order]
+    first = np.r_[True, cell[1:] != cell[:-1]]
+    return cell[first].tolist(), (pairs[first] & ((1 << 20) - 1)).tolist()
+
+
 class LabelMemory:
     """What the segmented frames said of each map cell, in the odometry frame.
 
@@ -248,12 +270,8 @@ class LabelMemory:
         self.window_ns = int(window_s * 1e9)
         self.frame_ns: int | None = None  # the latest frame added
         self._cells: dict[int, list[int]] = {}  # key -> [label code in the lead, its lead, last frame's stamp]
-        self._pending: list[NDArray[np.int64]] = []  # the latest frame's (key << 20 | code), not yet merged
+        self._pending: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []  # the latest frame's keys, codes
         self._pruned_ns: int | None = None
-
-    def _keys(self, xy_odom: NDArray[np.float64]) -> NDArray[np.int64]:
-        ij = np.floor(xy_odom / self.cell).astype(np.int64) + _OFF
-        return (ij[:, 0] << 21) | ij[:, 1]
 
     def add(self, frame_ns: int, xy_odom: NDArray[np.float64], mobility: NDArray[np.uint8],
             class_id: NDArray[np.int16]) -> None:
@@ -261,23 +279,19 @@ class LabelMemory:
         if frame_ns != self.frame_ns:
             self._merge()
             self.frame_ns = frame_ns
-        code = (mobility.astype(np.int64) << 16) | (class_id.astype(np.int64) + 1)
-        self._pending.append((self._keys(xy_odom) << 20) | code)
+        self._pending.append((cell_keys(xy_odom, self.cell), label_codes(mobility, class_id)))
 
     def _merge(self) -> None:
         """The latest frame's votes into the cells: per cell, the label most of its returns there had."""
         if not self._pending or self.frame_ns is None:
             self._pending = []
             return
-        pairs, counts = np.unique(np.concatenate(self._pending), return_counts=True)
+        keys, codes = majority_labels(np.concatenate([k for k, _ in self._pending]),
+                                      np.concatenate([c for _, c in self._pending]))
         self._pending = []
-        keys = pairs >> 20
-        order = np.lexsort((-counts, keys))
-        keys, pairs = keys[order], pairs[order]
-        first = np.r_[True, keys[1:] != keys[:-1]]
         t = self.frame_ns
         cells = self._cells
-        for k, c in zip(keys[first].tolist(), (pairs[first] & ((1 << 20) - 1)).tolist()):
+        for k, c in zip(keys, codes):
             e = cells.get(k)
             if e is None:
                 cells[k] = [c, 1, t]
@@ -303,7 +317,7 @@ class LabelMemory:
         found = np.zeros(n, bool)
         code = np.zeros(n, np.int64)
         cells, w, lead = self._cells, self.window_ns, self.MIN_LEAD
-        for i, k in enumerate(self._keys(xy_odom).tolist()):
+        for i, k in enumerate(cell_keys(xy_odom, self.cell).tolist()):
             v = cells.get(k)
             if v is None:
                 continue

@@ -302,6 +302,9 @@ class SegmentationConfig(_Model):
     need_cell: float = Field(0.25, gt=0, le=10, description="select: need: the cells evidence is counted in, m")
     max_rate: float | None = Field(None, gt=0, description="a budget: at most this many frames segmented per "
                                                            "second of tour, on average (null: no limit)")
+    max_frames: int | None = Field(None, gt=0, description="a budget: at most this many frames segmented in all, "
+                                                           "spread over the tour as max_rate would (null: no "
+                                                           "limit)")
 
     @model_validator(mode="after")
     def _backend_is_always_set(self) -> SegmentationConfig:

@@ -29,7 +29,8 @@ from semmap.io.tour import load_build_config
 DATA = Path(__file__).parent / "data"
 
 #: the frame selection's options, which every backend takes (segmentation.select)
-SELECT = {"select", "select_distance", "select_angle", "select_interval", "max_rate", "transfer_window",
+SELECT = {"select", "select_distance", "select_angle", "select_interval", "max_rate", "max_frames",
+          "transfer_window",
           "need_frames", "need_cells", "need_cell"}
 
 #: the options each backend takes besides ``backend``, ``classes_file`` and the frame selection's

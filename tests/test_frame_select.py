@@ -64,6 +64,17 @@ def test_the_budget_holds_the_average_rate_whatever_the_selection_wants():
     assert max(np.diff(taken)) <= 8  # spread over the tour, not spent at its start
 
 
+def test_a_frame_budget_is_spread_over_the_tour_and_never_overspent():
+    sel = FrameSelector(TopicSegmentation(max_frames=30))
+    assert not sel.trivial
+    sel.spread_over(60.0)  # a 60 s tour: a frame every 2 s
+    taken = [k for k in range(15 * 60) if sel.want(k * S // 15)]
+    assert len(taken) == 30 and taken[-1] > 15 * 50  # the last ones near the end, not all at the start
+    sel = FrameSelector(TopicSegmentation(max_frames=10))
+    sel.spread_over(1.0)  # a wrong guess of the length: the count still holds
+    assert sum(sel.want(k * S // 15) for k in range(15 * 60)) == 10
+
+
 def test_the_label_memory_transfers_furniture_once_two_frames_agree_and_a_person_briefly():
     mem = LabelMemory(0.05, window_s=2.0)
     person, wall, chair = ([[1.01, 1.01], [1.02, 1.03]], [[1.04, 1.01]], [[2.0, 2.0]])

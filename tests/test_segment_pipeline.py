@@ -187,6 +187,22 @@ def test_build_runs_a_model_backend_in_its_worker_and_a_rebuild_uses_the_cache(r
     assert second.summary.painting.hits_by_class == first.summary.painting.hits_by_class
 
 
+def test_a_rebuild_with_a_frame_selection_runs_no_model_either(ros1_tour, semantic_onnx, tmp_path):
+    from semmap.pipeline import build
+
+    cache = tmp_path / "cache"
+    seg = {"backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(cache), "select": "need",
+           "max_frames": 30}
+    first = build(ros1_tour.out, tmp_path / "m1", overrides={"segmentation": seg})
+    fs = first.summary.painting.frame_selection
+    entries = sorted(cache.glob("onnx-*/*.npz"))
+    assert fs.frames_segmented == len(entries) <= 30 and fs.frames_skipped > 0
+    mtimes = [p.stat().st_mtime_ns for p in entries]
+    second = build(ros1_tour.out, tmp_path / "m2", overrides={"segmentation": seg, "cleaning": {"person_radius": 0.3}})
+    assert [p.stat().st_mtime_ns for p in sorted(cache.glob("onnx-*/*.npz"))] == mtimes  # nothing segmented again
+    assert second.summary.painting.frame_selection == fs  # the same frames, from the cache
+
+
 # ---------------------------------------------------------------------------------------
 # eval-seg's protocol on a dataset built here
 

@@ -154,7 +154,7 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
     pictures = {"semantic": "semantic.png", "trajectory": "report/trajectory.png", "classes": "report/classes.png"}
     fs = painting.frame_selection
     src = outcome.labels_from
-    selected = fs is not None and (fs.select != "all" or fs.max_rate is not None)
+    selected = fs is not None and (fs.select != "all" or fs.frames_skipped > 0)
     if fs is not None and selected and src is not None and src.size == len(poses):
         _frames_picture(out / "report" / "frames.png", cleaned, extent, poses, src, fs.select)
         pictures["frames"] = "report/frames.png"
@@ -301,7 +301,8 @@ def camera_line(s: dict[str, Any]) -> str:
     loop = t.get("loop") or 0.0
     wait = f"; waiting for it {100 * t.get('wait_images', 0.0) / loop:.0f} % of the build" if loop > 0 else ""
     line = f"model ran on {fs['frames_segmented']} of {total} frames (select: {fs['select']}"
-    line += f", at most {fs['max_rate']:g} a second)" if fs.get("max_rate") else ")"
+    line += f", at most {fs['max_rate']:g} a second" if fs.get("max_rate") else ""
+    line += f", at most {fs['max_frames']} in all)" if fs.get("max_frames") else ")"
     if fs["scans_from_memory"]:
         line += f", {fs['scans_from_memory']} scans labelled from earlier frames"
     return line + wait

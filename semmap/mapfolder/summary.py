@@ -90,6 +90,7 @@ class FrameSelectionSummary(_Part):
 
     select: str
     max_rate: float | None
+    max_frames: int | None = None
     frames_segmented: int
     frames_skipped: int
     #: scans paired with a skipped frame, which took labels cell by cell from the last segmented one

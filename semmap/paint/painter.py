@@ -333,7 +333,7 @@ class LabelMemory:
 def label_memory(seg: SegmentationConfig, resolution: float) -> LabelMemory | None:
     """The label memory a build with segmentation settings ``seg`` and map cells of ``resolution`` needs
     (None: every frame is segmented)."""
-    if seg.select == "all" and seg.max_rate is None:
+    if seg.select == "all" and seg.max_rate is None and seg.max_frames is None:
         return None
     return LabelMemory(resolution, seg.transfer_window)
 

@@ -70,6 +70,7 @@ class ImageReader:
             raise
         if selector is None:
             selector = FrameSelector(seg_cfg, odometry)
+        selector.spread_over((opened.end_ns - opened.start_ns) * 1e-9)
         counts.setdefault("skipped_frames", 0)
         if selector.mode == "motion" and selector.odometry is None:
             log.info("segmentation.select: motion: the tour has no odometry; a frame is segmented every %.1f s",

@@ -13,6 +13,8 @@ frame did not see the same cells.
 * ``need``: a frame when what it looks at lacks camera evidence (:class:`semmap.paint.need.NeedSelector`).
 * ``max_rate``: a budget on top of any of them, at most that many frames per second of tour on average
   (a token bucket holding at most two frames: a frame the selection wants waits for a token).
+  ``max_frames``: at most that many in all, spent at the rate that spreads them over the tour's length
+  (from the bag's index), and never more.
 
 A selector sees the bag's records in bag order (:meth:`FrameSelector.on_record`: the odometry, and
 whatever else its :attr:`~FrameSelector.topics` name), is asked about each camera frame before the model
@@ -75,6 +77,7 @@ class FrameSelector:
         interval = cfg.select_interval if cfg.select_interval is not None else (1.0 if cfg.select == "motion" else 0.0)
         self.interval_ns = int(interval * 1e9)
         self.rate = cfg.max_rate
+        self.max_frames = cfg.max_frames
         self.odometry = None if self.trivial else odometry
         self._pose: NDArray[np.float64] | None = None  # the latest odometry pose
         self._pose_ns: int | None = None
@@ -89,7 +92,14 @@ class FrameSelector:
     @property
     def trivial(self) -> bool:
         """Every frame is segmented: nothing else needs reading."""
-        return self.mode == "all" and self.rate is None
+        return self.mode == "all" and self.rate is None and self.max_frames is None
+
+    def spread_over(self, seconds: float) -> None:
+        """The tour lasts ``seconds``: a ``max_frames`` budget becomes the rate that spends it over the tour
+        (the lower of it and ``max_rate``); the count caps it too."""
+        if self.max_frames is not None and seconds > 0:
+            rate = self.max_frames / seconds
+            self.rate = rate if self.rate is None else min(self.rate, rate)
 
     @property
     def topics(self) -> list[str]:
@@ -135,7 +145,8 @@ class FrameSelector:
 
     def want(self, stamp_ns: int) -> bool:
         """Whether to segment the frame stamped ``stamp_ns``, budget included; counted either way."""
-        if self.wanted(stamp_ns) and self._budget(stamp_ns):
+        spent = self.max_frames is not None and self.selected >= self.max_frames
+        if not spent and self.wanted(stamp_ns) and self._budget(stamp_ns):
             if self.rate is not None:
                 self._tokens -= 1.0
             self._undo = (self._last_ns, self._last_pose)

@@ -119,7 +119,7 @@ def test_a_build_selecting_by_motion_runs_fewer_frames_and_keeps_the_map(demo_to
     assert res.summary.counts.images == fs.frames_segmented < 0.75 * n_all
     assert fs.scans_from_memory > 0 and fs.returns_labelled_from_memory > 0
     report = (res.out / "report.md").read_text()
-    assert f"Model ran on {fs.frames_segmented} of {n_all} frames (select: motion)" in report
+    assert f"Label images used for {fs.frames_segmented} of {n_all} frames (select: motion)" in report
     assert "![where the model ran](report/frames.png)" in report and (res.out / "report" / "frames.png").is_file()
     assert not (demo_map.out / "report" / "frames.png").exists()  # every frame segmented: nothing to show
     s_all, s_mot = _score(demo_tour.out, demo_map.out), _score(demo_tour.out, res.out)

@@ -299,8 +299,11 @@ def camera_line(s: dict[str, Any]) -> str:
     total = fs["frames_segmented"] + fs["frames_skipped"]
     t = s["timings_s"]
     loop = t.get("loop") or 0.0
-    wait = f"; waiting for it {100 * t.get('wait_images', 0.0) / loop:.0f} % of the build" if loop > 0 else ""
-    line = f"model ran on {fs['frames_segmented']} of {total} frames (select: {fs['select']}"
+    recorded = s["painting"].get("backend") in ("topic", "folder")  # label images, no model
+    source = "the label images" if recorded else "the model"
+    wait = f"; waiting for {source} {100 * t.get('wait_images', 0.0) / loop:.0f} % of the build" if loop > 0 else ""
+    used = "label images used for" if recorded else "model ran on"
+    line = f"{used} {fs['frames_segmented']} of {total} frames (select: {fs['select']}"
     line += f", at most {fs['max_rate']:g} a second" if fs.get("max_rate") else ""
     line += f", at most {fs['max_frames']} in all)" if fs.get("max_frames") else ")"
     if fs["scans_from_memory"]:

@@ -319,8 +319,11 @@ def test_a_signal_after_the_output_is_complete_does_not_fail_the_command(monkeyp
 
 
 _HALF_BUILT = r"""
-import os, sys, time
+import os, signal, sys, time
 from semmap.cli.main import _stop_signals_raise
+
+# Ctrl-C as in a terminal (a background job of a non-interactive shell starts with SIGINT ignored)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from semmap.errors import Interrupted
 
 class HalfBuilt:

@@ -93,7 +93,7 @@ class _Trace:
     def __init__(self) -> None:
         self._stamps = array("q")
         self._odom = array("d")  # x, y, yaw per scan; NaN where there was no odometry
-        self._labels = array("B")  # LABELS_*: where the scan's labels came from
+        self._labels = array("B")  # where the scan's labels came from (see labels)
 
     def add(self, stamp_ns: int, odom_pose: NDArray[np.float64] | None, labels: int = 0) -> None:
         self._stamps.append(stamp_ns)
@@ -241,7 +241,7 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
                 images = ImageWorker(tinfo.bag, tinfo.topics.image, cfg.segmentation, shape, odometry=odometry,
                                      need=need)
             else:
-                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry,
+                images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation,
                                          make_selector(cfg.segmentation, odometry, need))
         painter = Painter(tinfo.T_base_lidar, tinfo.calibration, class_names,
                           load_class_table(cfg.segmentation.classes_file), cfg.paint, cfg.sync,

@@ -458,7 +458,7 @@ def _images_body(out: Connection, freed: Connection, bag: str, topic: str, seg_c
             slots = np.ndarray((n, 2, *shape), np.uint16, buffer=shm.buf)  # per slot: label, instance
             free = list(range(n))
         cfg = segmentation_config(seg_cfg)
-        images = ImageReader(Path(bag), topic, cfg, counts, odometry, make_selector(cfg, odometry, need))
+        images = ImageReader(Path(bag), topic, cfg, counts, make_selector(cfg, odometry, need))
         out.send(("ready",))
         cpu0 = time.process_time()
         for seg in images:

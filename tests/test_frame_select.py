@@ -145,7 +145,7 @@ def test_the_image_worker_hands_over_instances_and_skipped_frames(demo_tour, tmp
     odo = selection_odometry(tinfo, cfg)
     assert odo is not None
     worker = ImageWorker(tinfo.bag, tinfo.topics.image, seg_cfg, (intr.height, intr.width), odometry=odo)
-    local = InProcessImages(tinfo.bag, tinfo.topics.image, seg_cfg, odo)
+    local = InProcessImages(tinfo.bag, tinfo.topics.image, seg_cfg, FrameSelector(seg_cfg, odo))
     try:
         worker.wait_ready()
         got: list = []

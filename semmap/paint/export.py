@@ -110,7 +110,7 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
                           cfg.grid.no_return_range, memory=label_memory(cfg.segmentation, cfg.grid.resolution))
     odometry = selection_odometry(tinfo, cfg)
-    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation, odometry,
+    images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation,
                              make_selector(cfg.segmentation, odometry, need_context(tinfo, cfg)))
     try:
         for item in ScanStream(tinfo, cfg.sync, images, progress, bag=bag):

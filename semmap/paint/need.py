@@ -82,12 +82,12 @@ def make_selector(cfg: SegmentationConfig, odometry: OdometrySource | None,
 #: farther one is left to the closer views the robot will have of it
 GAP = 0.15
 GAP_BEAMS = 3.0
+SMALL_EXTENT = 1.0
+SMALL_RANGE = 5.0
 #: a cell on a wall or a long face lacking evidence counts this much of one on a small thing
 WALL_WEIGHT = 0.1
 #: a cell the LiDAR has hit for less than this (ns) needs no label yet: someone walking through
 PERSIST_NS = 1_000_000_000
-SMALL_EXTENT = 1.0
-SMALL_RANGE = 5.0
 
 
 def _on_small_things(points: NDArray[np.float64], origin: NDArray[np.float64], step: float) -> NDArray[np.bool_]:
@@ -129,7 +129,6 @@ class NeedSelector(FrameSelector):
         #: per cell: when a LiDAR return first landed in it (a cell hit for less than PERSIST_NS so far may be
         #: someone walking through: it needs no label yet)
         self._first_hit: dict[int, int] = {}
-        self.judged = 0
 
     def _painter_for(self, names: tuple[str, ...]) -> Painter:
         c = self.context
@@ -205,7 +204,6 @@ class NeedSelector(FrameSelector):
         need = self.need()
         if need is None:  # no scan or odometry yet: as 'motion' would
             return self._moved(stamp_ns)
-        self.judged += 1
         return need >= self.threshold
 
     def segmented(self, seg: Segmentation) -> None:

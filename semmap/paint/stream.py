@@ -53,7 +53,8 @@ from ..segment.select import SkippedFrame
 from .motion import OdomTrack
 from .painter import Painter
 
-__all__ = ["PairedScan", "ScanStream", "StreamCounts", "open_build_tour", "selection_odometry", "tour_class_names"]
+__all__ = ["PairedScan", "ScanStream", "StreamCounts", "odometry_offset_ns", "open_build_tour", "selection_odometry",
+           "tour_class_names"]
 
 ProgressFn = Callable[[int, int], None]
 
@@ -114,8 +115,7 @@ class ScanStream:
         self._odom_tf = tour.topics.odometry_tf  # odometry from /tf: the transform that carries it
         #: added to odometry stamps to put them on the scans' clock (sync.odometry_offset; "auto" is
         #: resolved by the build before it streams, and taken as 0 by anything that does not)
-        offset = sync.odometry_offset
-        self._odom_offset_ns = int(round(offset * 1e9)) if isinstance(offset, float) else 0
+        self._odom_offset_ns = odometry_offset_ns(sync)
         #: seconds spent waiting for segmentations (a slow model shows here)
         self.wait_images_s = 0.0
         self._segs: deque[Segmentation | SkippedFrame] = deque()
@@ -258,9 +258,14 @@ def selection_odometry(tour: Tour, cfg: BuildConfig) -> OdometrySource | None:
     odometry, on the scans' clock (None: the tour has none)."""
     if not tour.topics.odometry:
         return None
-    offset = cfg.sync.odometry_offset
-    offset_ns = int(round(offset * 1e9)) if isinstance(offset, float) else 0
-    return OdometrySource(tour.topics.odometry, tour.topics.odometry_tf, offset_ns)
+    return OdometrySource(tour.topics.odometry, tour.topics.odometry_tf, odometry_offset_ns(cfg.sync))
+
+
+def odometry_offset_ns(sync: SyncConfig) -> int:
+    """``sync.odometry_offset`` in ns, added to odometry stamps ("auto" is resolved by the build before it
+    streams, and taken as 0 by anything that does not)."""
+    offset = sync.odometry_offset
+    return int(round(offset * 1e9)) if isinstance(offset, float) else 0
 
 
 def tour_class_names(tour: Tour, cfg: BuildConfig) -> tuple[str, ...]:

@@ -49,14 +49,15 @@ class ImageReader:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
     here, before the first frame is asked for (start-up, not work), and released by :meth:`close`.
 
-    With a frame selection (``segmentation.select``, ``max_rate``) the frames it does not take come out
-    as :class:`SkippedFrame`, before the model sees them; ``odometry`` is read in the same pass for it.
+    With a frame selection (``segmentation.select``, ``max_rate``, ``max_frames``) the frames it does not
+    take come out as :class:`SkippedFrame`, before the model sees them; what the selector reads besides
+    the images (its :attr:`~FrameSelector.topics`) is read in the same pass. ``selector`` default: the
+    one ``seg_cfg`` asks for, without odometry.
     ``counts`` gains ``images`` (segmented), ``skipped_frames``, ``bad_images`` and ``segment_ms``.
     """
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 counts: dict[str, int], odometry: OdometrySource | None = None,
-                 selector: FrameSelector | None = None) -> None:
+                 counts: dict[str, int], selector: FrameSelector | None = None) -> None:
         from ..io.bag import read_bag
         from .base import create_segmenter
 
@@ -69,7 +70,7 @@ class ImageReader:
             self._stack.close()
             raise
         if selector is None:
-            selector = FrameSelector(seg_cfg, odometry)
+            selector = FrameSelector(seg_cfg)
         selector.spread_over((opened.end_ns - opened.start_ns) * 1e-9)
         counts.setdefault("skipped_frames", 0)
         if selector.mode == "motion" and selector.odometry is None:
@@ -122,9 +123,9 @@ class InProcessImages:
     """Segmentations of a camera topic, decoded in this process, one at a time."""
 
     def __init__(self, bag: Path, topic: str, seg_cfg: SegmentationConfig,
-                 odometry: OdometrySource | None = None, selector: FrameSelector | None = None) -> None:
+                 selector: FrameSelector | None = None) -> None:
         self.counts: dict[str, Any] = {"images": 0, "skipped_frames": 0, "bad_images": 0, "segment_ms": 0}
-        self._source = ImageReader(bag, topic, seg_cfg, self.counts, odometry, selector)
+        self._source = ImageReader(bag, topic, seg_cfg, self.counts, selector)
         self._it = iter(self._source)
 
     def next(self) -> Segmentation | SkippedFrame | None:

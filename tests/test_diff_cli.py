@@ -131,6 +131,17 @@ def test_the_diff_knows_which_object_holds_each_movable_cell_as_the_build_groupe
         cx = s.spec.origin_x + (cols.mean() + 0.5) * s.spec.resolution
         cy = s.spec.origin_y + (rows.mean() + 0.5) * s.spec.resolution
         assert abs(cx - o.centroid[0]) < 1e-3 and abs(cy - o.centroid[1]) < 1e-3
+    # listed in another order (two objects whose centroids tie in y come out of the build's uncropped
+    # grid in the order its last bits give): the same grouping, each cell on its listed object
+    b = tmp_path / "reordered"
+    shutil.copytree(demo_map.out, b)
+    objs = json.loads((b / "semi_static_objects.json").read_text())
+    objs["objects"] = objs["objects"][::-1]
+    (b / "semi_static_objects.json").write_text(json.dumps(objs))
+    s2 = open_session(b)
+    assert s2.object_index is not None and len(s.objects) >= 2
+    n = len(s.objects)
+    assert np.array_equal(s2.object_index, np.where(idx >= 0, n - 1 - idx, -1))
     # an object list edited by hand is not the build's: no grouping, the boxes decide
     b = tmp_path / "edited"
     shutil.copytree(demo_map.out, b)

@@ -191,11 +191,19 @@ def _object_index(folder: Path, m: MapFolder) -> NDArray[np.int32] | None:
                                 link / m.spec.resolution)
     if len(objs) != len(m.objects):
         return None
-    for a, b in zip(objs, m.objects, strict=True):
-        if a.class_name != b.class_name or abs(a.centroid[0] - b.centroid[0]) > 2e-3 \
-                or abs(a.centroid[1] - b.centroid[1]) > 2e-3:
+    # one for one by class and centroid, in any order: two objects whose centroids tie in y are
+    # listed in the order the build's uncropped grid gave them, which the cropped one may not
+    place = np.full(len(objs) + 1, -1, np.int32)  # regrouped index -> listed index; [-1] stays -1
+    taken = np.zeros(len(m.objects), bool)
+    for k, a in enumerate(objs):
+        for j, b in enumerate(m.objects):
+            if not taken[j] and a.class_name == b.class_name and abs(a.centroid[0] - b.centroid[0]) <= 2e-3 \
+                    and abs(a.centroid[1] - b.centroid[1]) <= 2e-3:
+                place[k], taken[j] = j, True
+                break
+        else:
             return None
-    return index
+    return place[index]
 
 
 def open_session(path: str | Path) -> Session:

@@ -753,7 +753,9 @@ def group_objects(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[s
                 views = seen_by(r_, c_) if seen_by is not None else int(labelled[r_, c_].max())
                 out.append(_box(cname, np.column_stack([xs[part], ys[part]]), res, views))
                 cells.append((r_, c_))
-    ranked = sorted(range(len(out)), key=lambda i: (out[i].centroid[1], out[i].centroid[0]))
+    # by centroid, to the micrometre: a crop of the grid moves the cell centres' last bits, which
+    # must not reorder two objects whose centroids tie in y
+    ranked = sorted(range(len(out)), key=lambda i: (round(out[i].centroid[1], 6), round(out[i].centroid[0], 6)))
     for j, i in enumerate(ranked):
         index[cells[i]] = j
     return [out[i] for i in ranked], index

@@ -12,14 +12,15 @@ throughput while a backend runs in the build's frame worker.
    - ``sam3``: a random-weight SAM 3 of the ``small`` preset (``tests/sam3_helpers.py``: SAM 3 with
      widths and queries / 4 and the token grid / 2, so its FLOP split between the image embedding and
      a prompt's decoder run is SAM 3's at twice the side), 1 and 80 prompts.
-   **SAM 3 prompt scaling**: time(10 prompts) / time(1 prompt), the 1- and 10-prompt segmenters
+   **SAM 3 prompt cost**: time(10 prompts) / time(1 prompt), the 1- and 10-prompt segmenters
    timed on alternate frames (median of each, and median of the per-frame-pair ratios, the figure
-   least disturbed by other work on the machine), (a) at the default conf (random weights score
-   every query ~0.25, so about half the queries of *every* prompt are kept and every prompt runs
-   its mask head: the worst case), (b) with conf 1 (no prompt keeps a query, so no mask head runs:
-   the best case, a frame where none of the classes is present), (c) both at half the native side.
-   Beside it the FLOP split counted by torch (``flop_split``) of SAM 3 itself and of the preset,
-   and the ratio it would give if time followed FLOPs.
+   least disturbed by other work on the machine), and each prompt's cost beyond the first, (a) at
+   the default conf (random weights score every query ~0.25, so about half the queries of *every*
+   prompt are kept and every prompt runs its mask head: the worst case), the prompts' decoder
+   passes batched as the backend does and one call per prompt, (b) with conf 1 (no prompt keeps a
+   query, so no mask head runs: the best case, a frame where none of the classes is present), (c)
+   both at half the native side. Beside each ratio its floor, the ratio if time followed the FLOPs
+   torch counts (``flop_split``: E + 10 D over E + D), and the FLOP split of SAM 3 itself.
    - ``ultralytics``: only where the package imports (it does not beside torch 2.13.0).
 2. **Mapping throughput with a backend in its worker**: ``semmap build`` of a simulated tour
    (default ``demo``) with (a) the ``topic`` backend (labels from the bag: mapping alone), (b) the
@@ -105,16 +106,19 @@ def time_backend(cfg, rgb: np.ndarray, runs: int) -> dict:
     return {"fps": 1.0 / med, "ms": med * 1e3, "first_call_s": load_s, "runs": runs, **extra}
 
 
-def sam3_ratio(cfg1, cfg10, rgb: np.ndarray, runs: int) -> dict:
-    """time(10 prompts) / time(1 prompt), the two segmenters timed on alternate frames."""
+def sam3_ratio(cfg1, cfg10, rgb: np.ndarray, runs: int, one_at_a_time: bool = False) -> dict:
+    """time(10 prompts) / time(1 prompt), the two segmenters timed on alternate frames
+    (``one_at_a_time``: each prompt's decoder pass in a call of its own, not batched)."""
     from semmap.records import Image
     from semmap.segment.base import create_segmenter
 
     segs = {1: create_segmenter(cfg1, cache=False), 10: create_segmenter(cfg10, cache=False)}
     try:
         for seg in segs.values():
+            if one_at_a_time:
+                seg.prompt_batch = lambda: 1
             seg.segment(Image(0, "cam", rgb, "rgb8"))  # load, warm up
-            seg.stats.update(decoder_runs=0, mask_heads=0)
+            seg.stats.update(decoder_runs=0, mask_heads=0, decoder_calls=0)
         times: dict[int, list[float]] = {1: [], 10: []}
         for i in range(runs):
             frame = rgb.copy()
@@ -127,7 +131,9 @@ def sam3_ratio(cfg1, cfg10, rgb: np.ndarray, runs: int) -> dict:
         st = segs[10].stats
         return {"side": segs[1].input_side, "ms_1": m1 * 1e3, "ms_10": m10 * 1e3, "ratio": m10 / m1,
                 "ratio_pairs": statistics.median(b / a for a, b in zip(times[1], times[10])), "runs": runs,
-                "mask_heads_per_prompt": st["mask_heads"] / max(1, st["decoder_runs"])}
+                "ms_per_extra_prompt": (m10 - m1) * 1e3 / 9,
+                "mask_heads_per_prompt": st["mask_heads"] / max(1, st["decoder_runs"]),
+                "prompts_per_call": st["decoder_runs"] / max(1, st["decoder_calls"])}
     finally:
         for seg in segs.values():
             seg.close()
@@ -161,46 +167,56 @@ def sam3_scaling(sam3_dir: Path, rgb: np.ndarray, args, results: dict) -> None:
     coco = load_class_table(None).names("coco")
     native = PRESETS["small"]["side"]
     kept, queries = sam3_kept(sam3_dir, rgb, Sam3Segmentation().conf)
-    settings = [("default conf, every prompt keeps queries", {}),
-                ("conf 1: no prompt keeps a query", {"conf": 1.0}),
-                (f"half side ({native // 2} px), default conf", {"imgsz": native // 2}),
-                (f"half side ({native // 2} px), conf 1", {"imgsz": native // 2, "conf": 1.0})]
+    settings = [("default conf, every prompt keeps queries", {}, False),
+                ("the same, one prompt per decoder call", {}, True),
+                ("conf 1: no prompt keeps a query", {"conf": 1.0}, False),
+                (f"half side ({native // 2} px), default conf", {"imgsz": native // 2}, False),
+                (f"half side ({native // 2} px), conf 1", {"imgsz": native // 2, "conf": 1.0}, False)]
+    # the floor: the ratio time(10)/time(1) would be if time followed FLOPs, E + 10 D over E + D
+    floors: dict[int, float] = {}
+    results["flops"] = []
+    if not args.skip_flops:
+        for name, cfg, side in (("SAM 3", None, 1008), ("SAM 3", None, 504),
+                                ("small preset", random_config("small"), native),
+                                ("small preset", random_config("small"), native // 2)):
+            f = flop_split(cfg, side)
+            f["floor"] = (f["vision"] + 10 * f["decoder"]) / (f["vision"] + f["decoder"])
+            results["flops"].append({"model": name, **f})
+            if cfg is not None:
+                floors[side] = f["floor"]
     runs = max(5, args.runs // 5)
-    print(f"\nSAM 3 prompt scaling, `small` preset, 1 vs 10 prompts on alternate frames ({runs} pairs; random "
+    print(f"\nSAM 3 prompt cost, `small` preset, 1 vs 10 prompts on alternate frames ({runs} pairs; random "
           f"weights keep {kept:.1f} of {queries} queries per prompt at the default conf "
-          f"{Sam3Segmentation().conf}):\n")
-    print("| setting | input | 1 prompt, ms | 10 prompts, ms | ratio of the medians | **ratio, median of the pairs** "
-          "| mask heads run per prompt |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+          f"{Sam3Segmentation().conf}). The floor is the ratio if time followed FLOPs:\n")
+    print("| setting | input | prompts per call | 1 prompt, ms | 10 prompts, ms | each prompt beyond the first, ms "
+          "| **ratio, median of the pairs** | floor from FLOPs | mask heads run per prompt |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     results["sam3_scaling"] = []
-    for label, extra in settings:
+    for label, extra, one in settings:
         cfgs = [Sam3Segmentation(model=sam3_dir, prompts=coco[:n], threads=args.threads, **extra)
                 for n in (1, 10)]
-        r = sam3_ratio(cfgs[0], cfgs[1], rgb, runs)
+        r = sam3_ratio(cfgs[0], cfgs[1], rgb, runs, one_at_a_time=one)
         r["setting"] = label
+        r["floor"] = floors.get(r["side"])
         results["sam3_scaling"].append(r)
-        print(f"| {label} | {r['side']}² | {r['ms_1']:.0f} | {r['ms_10']:.0f} | {r['ratio']:.2f} | "
-              f"**{r['ratio_pairs']:.2f}** | {r['mask_heads_per_prompt']:.2f} |")
+        floor = f"{r['floor']:.2f}" if r["floor"] else "-"
+        print(f"| {label} | {r['side']}² | {r['prompts_per_call']:.0f} | {r['ms_1']:.0f} | {r['ms_10']:.0f} | "
+              f"{r['ms_per_extra_prompt']:.0f} | **{r['ratio_pairs']:.2f}** | {floor} | "
+              f"{r['mask_heads_per_prompt']:.2f} |")
     # the per-pair ratio: both timings of a pair ran back to back, so load from other work cancels best
     results["sam3_ratio_10_over_1"] = results["sam3_scaling"][0]["ratio_pairs"]
     results["sam3_kept_queries_per_prompt"] = kept
-    print("\n(target: ratio ≤ 1.5)")
-    if args.skip_flops:
+    if not results["flops"]:
         return
     print("\nFLOPs (torch's FlopCounterMode, attention included) of the image embedding and of one prompt's "
           "decoder run; the last column is the ratio time(10)/time(1) would be if time followed FLOPs:\n")
     print("| model | input | embedding, GFLOP | decoder / prompt, GFLOP | of which mask head | embedding / decoder "
           "| (E + 10 D) / (E + D) |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    results["flops"] = []
-    for name, cfg, side in (("SAM 3", None, 1008), ("SAM 3", None, 504),
-                            ("small preset", random_config("small"), native),
-                            ("small preset", random_config("small"), native // 2)):
-        f = flop_split(cfg, side)
+    for f in results["flops"]:
         e, d = f["vision"], f["decoder"]
-        results["flops"].append({"model": name, **f})
-        print(f"| {name} | {side}² | {e:.1f} | {d:.2f} | {f['decoder_parts']['mask_decoder'] / d:.0%} | "
-              f"{e / d:.1f} | {(e + 10 * d) / (e + d):.2f} |")
+        print(f"| {f['model']} | {f['side']}² | {e:.1f} | {d:.2f} | {f['decoder_parts']['mask_decoder'] / d:.0%} | "
+              f"{e / d:.1f} | {f['floor']:.2f} |")
 
 
 def run_child(code: str, *args: str) -> dict:

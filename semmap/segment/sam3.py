@@ -11,12 +11,17 @@ Inference follows the research's architecture:
 1. **The image embedding is computed once per frame and cached** (the ViT backbone and its
    FPN neck, by far the largest part of the model). Asking again for the same frame reuses it.
 2. **The light decoder runs once per class prompt** (DETR encoder/decoder and mask head, on
-   the cached embedding and the prompt's text embedding, itself computed once at load).
-   Prompts run one after another, so peak memory does not grow with their number; each
-   prompt's instances are merged into the label image before the next runs. The mask head
-   (a third of a prompt's FLOPs at 1008 px, nearly half at 504 px) runs only when some query
-   of the prompt is kept (scores at least ``conf``): a class absent from the frame costs the
-   DETR stages alone.
+   the cached embedding and the prompt's text embedding, itself computed once at load). The
+   prompts' decoder passes are batched: as many prompts as fit the memory budget
+   (:meth:`Sam3Segmenter.prompt_batch`) go through the DETR stages in one call, and the prompts
+   that keep a query through the mask head in one more. On two CPU threads that is 5 % faster
+   than a call per prompt, 14 % when another process shares the cores (as mapping does during a
+   build); on a single thread it is not faster, and prompts run one at a time. The one
+   prompt-independent step of a decoder pass, the DETR encoder's first self-attention over the
+   image tokens, runs once per frame and is shared by every prompt. Prompts are merged into the
+   label image in prompt order, as one after another would. The mask head (a third of a
+   prompt's FLOPs at 1008 px, nearly half at 504 px) runs only for prompts with some query kept
+   (scores at least ``conf``): a class absent from the frame costs the DETR stages alone.
 3. **The input resolution scales to a memory budget**: the largest square side, a multiple
    of twice the patch size and at most ``segmentation.imgsz`` (default: the model's own
    size, 1008 for SAM 3), whose estimated peak activation memory
@@ -40,9 +45,9 @@ decoder run at its native 1008 px (5614 vs 420 GFLOP: the DETR encoder's attenti
 72² tokens grows with their number squared, like the ViT's global layers), 20.7× at 504 px; so
 time(10 prompts) / time(1 prompt) cannot go below 1.63 at 1008 px (1.41 at 504 px) while every
 prompt runs its mask head, even if time followed FLOPs (on CPU the decoder's small operations run
-well below the ViT's FLOP rate). The only prompt-independent step left in a decoder run, the
-first DETR encoder layer's self-attention (7 % of the run's FLOPs), is inside
-``Sam3DetrEncoder.forward`` and is not reused.
+well below the ViT's FLOP rate). The first DETR encoder layer's self-attention (7 % of a run's
+FLOPs) is prompt-independent and is computed once per frame (:meth:`Sam3Segmenter._encode`
+re-runs ``Sam3DetrEncoder.forward`` around it; a test holds it to the library's own forward).
 
 Sam3Processor itself needs torchvision for its image processor; the preprocessing here is
 its equivalent (bilinear resize to a square, scale to [0, 1], normalise by the folder's
@@ -130,9 +135,11 @@ class Sam3Segmenter:
         self._model: Any = None
         self._embed_key: str | None = None
         self._embed: Any = None
+        self._shared: Any = None  # the frame's prompt-independent DETR encoder input (see _encode)
         self._side: int | None = None
         self._index: dict[tuple[int, int], NDArray[np.intp]] = {}
-        self.stats = {"embeddings": 0, "embedding_reuses": 0, "decoder_runs": 0, "mask_heads": 0}
+        self.stats = {"embeddings": 0, "embedding_reuses": 0, "decoder_runs": 0, "mask_heads": 0,
+                      "decoder_calls": 0}
 
     # -- loading -----------------------------------------------------------------------------
     def _load(self) -> Any:
@@ -234,7 +241,7 @@ class Sam3Segmenter:
         if key == self._embed_key:
             self.stats["embedding_reuses"] += 1
             return self._embed
-        self._embed = None  # free the previous frame's embedding first
+        self._embed = self._shared = None  # free the previous frame's embedding first
         with self._torch.inference_mode():
             self._embed = model.get_vision_features(pixel_values=self.pixel_values(rgb))
         self._embed_key = key
@@ -252,31 +259,91 @@ class Sam3Segmenter:
         keep = keep[torch.argsort(scores[keep], descending=True)][: self.cfg.max_det]
         return scores, keep
 
-    def _decode(self, embed: Any, text: Any, mask: Any) -> tuple[Any, Any, Any]:
-        """One prompt's decoder run on a cached image embedding: ``Sam3Model.forward``'s text-prompt
-        path (DETR encoder, DETR decoder, scoring, mask head) through the model's own modules, except
-        that the mask head only runs when a query is kept (the box head, unused here, never does).
-        Returns the scores, the kept queries and the mask logits (None when nothing is kept)."""
-        model = self._model
+    def decoder_mb(self, side: int) -> float:
+        """Estimated activation memory (MB, float32) of one prompt's decoder pass at a ``side`` input:
+        the DETR stages' token states (about fourteen copies of the token grid at the DETR width, its
+        MLP eight of them) and the mask head's pixel features (4× the token grid, a few copies) with
+        one mask per query. An upper-bound style estimate, as :func:`estimate_activation_mb`."""
+        g = side // self._patch
+        fine = (4 * g) ** 2
+        return 4.0 * (g * g * self._detr_hidden * 14 + fine * self._detr_hidden * 3 + self._queries * fine) / 2**20
+
+    def prompt_batch(self) -> int:
+        """How many prompts' decoder passes run in one call: as many as fit the memory budget, when
+        torch runs on more than one thread; one at a time on a single thread, where one big call was
+        measured no faster than many small ones (docs/benchmarks.md, SAM 3 prompt cost)."""
+        self._load()
+        if self._torch.get_num_threads() < 2:
+            return 1
+        per = self.decoder_mb(self.input_side)
+        return max(1, min(len(self.names), int(self.cfg.memory_budget_mb // per)))
+
+    def _encode(self, embed: Any, features: Any, text_mask: Any) -> tuple[Any, Any, Any]:
+        """The DETR encoder for a batch of prompts on one frame: ``Sam3DetrEncoder.forward`` on the
+        token grid the model's own decoder path uses (the FPN's second-coarsest level), with the first
+        layer's self-attention over the image tokens, the same for every prompt, computed once per
+        frame. Returns the encoded tokens, their position encodings and the grid's shape."""
+        from transformers.masking_utils import create_bidirectional_mask
+
+        enc = self._model.detr_encoder
+        first = enc.layers[0]
+        if self._shared is None:
+            x, pos, shapes = enc._prepare_multilevel_features([embed.fpn_hidden_states[-2]],
+                                                              [embed.fpn_position_encoding[-2]])
+            h = first.layer_norm1(x)
+            with_pos = h + pos
+            h, _ = first.self_attn(query=with_pos, key=with_pos, value=h)
+            self._shared = (x, pos, shapes, first.dropout(h) + x)
+        x, pos, shapes, attended = self._shared
+        n = features.shape[0]
+        mask = create_bidirectional_mask(config=enc.config, inputs_embeds=x.expand(n, -1, -1),
+                                         attention_mask=text_mask, encoder_hidden_states=features)
+        h = attended.expand(n, -1, -1)
+        cross, _ = first.cross_attn(query=first.layer_norm2(h), key=features, value=features, attention_mask=mask)
+        h = first.dropout(cross) + h
+        h = first.dropout(first.mlp(first.layer_norm3(h))) + h
+        pos = pos.expand(n, -1, -1)
+        for layer in enc.layers[1:]:
+            h = layer(h, prompt_feats=features, vision_pos_encoding=pos, prompt_cross_attn_mask=mask)
+        return h, pos, shapes
+
+    def _decode_many(self, embed: Any, prompts: list[tuple[Any, Any]]) -> list[tuple[Any, Any, Any]]:
+        """The decoder passes of some prompts (their text features and attention masks) on a cached
+        image embedding, in one batch: ``Sam3Model.forward``'s text-prompt path (DETR encoder, DETR
+        decoder, scoring, mask head) through the model's own modules, except that the mask head runs
+        only for the prompts that keep a query (the box head, unused here, never does). Returns, per
+        prompt, its scores, its kept queries and its mask logits (None when it keeps nothing)."""
+        torch, model = self._torch, self._model
         fpn = embed.fpn_hidden_states[:-1]
-        pos = embed.fpn_position_encoding[:-1]
-        features = text.pooler_output
-        text_mask = mask.bool()
-        enc = model.detr_encoder(vision_features=[fpn[-1]], text_features=features, vision_pos_embeds=[pos[-1]],
-                                 text_mask=text_mask)
-        dec = model.detr_decoder(vision_features=enc.last_hidden_state, text_features=enc.text_features,
-                                 vision_pos_encoding=enc.pos_embeds_flattened, text_mask=text_mask,
-                                 spatial_shapes=enc.spatial_shapes)
+        features = torch.cat([t.pooler_output for t, _ in prompts])
+        text_mask = torch.cat([m for _, m in prompts]).bool()
+        tokens, pos, shapes = self._encode(embed, features, text_mask)
+        dec = model.detr_decoder(vision_features=tokens, text_features=features, vision_pos_encoding=pos,
+                                 text_mask=text_mask, spatial_shapes=shapes)
         logits = model.dot_product_scoring(decoder_hidden_states=dec.intermediate_hidden_states,
-                                           text_features=enc.text_features, text_mask=text_mask).squeeze(-1)[-1]
-        scores, keep = self._keep(logits, dec.presence_logits[-1])
-        if keep.numel() == 0:
-            return scores, keep, None
-        self.stats["mask_heads"] += 1
-        masks = model.mask_decoder(decoder_queries=dec.intermediate_hidden_states[-1], backbone_features=list(fpn),
-                                   encoder_hidden_states=enc.last_hidden_state, prompt_features=features,
-                                   prompt_mask=text_mask).pred_masks
-        return scores, keep, masks
+                                           text_features=features, text_mask=text_mask).squeeze(-1)[-1]
+        presence = dec.presence_logits[-1]
+        kept = [self._keep(logits[i:i + 1], None if presence is None else presence[i:i + 1])
+                for i in range(len(prompts))]
+        self.stats["decoder_calls"] += 1
+        self.stats["decoder_runs"] += len(prompts)
+        masks: list[Any] = [None] * len(prompts)
+        heads = [i for i, (_, keep) in enumerate(kept) if keep.numel()]
+        if heads:
+            sel = torch.tensor(heads, device=features.device)
+            k = len(heads)
+            self.stats["mask_heads"] += k
+            pred = model.mask_decoder(decoder_queries=dec.intermediate_hidden_states[-1][sel],
+                                      backbone_features=[f.expand(k, -1, -1, -1) for f in fpn],
+                                      encoder_hidden_states=tokens[sel], prompt_features=features[sel],
+                                      prompt_mask=text_mask[sel]).pred_masks
+            for j, i in enumerate(heads):
+                masks[i] = pred[j:j + 1]
+        return [(scores, keep, m) for (scores, keep), m in zip(kept, masks)]
+
+    def _decode(self, embed: Any, text: Any, mask: Any) -> tuple[Any, Any, Any]:
+        """One prompt's decoder pass (see :meth:`_decode_many`)."""
+        return self._decode_many(embed, [(text, mask)])[0]
 
     def _paint(self, masks: Any, scores: Any, keep: Any, k: int, canvas: list[Any]) -> None:
         """Paint one prompt's kept instances (label value k) at mask resolution, where they beat what
@@ -321,17 +388,18 @@ class Sam3Segmenter:
         return Segmentation(stamp_ns, label[ys, xs], self.names, conf[ys, xs], instance[ys, xs])
 
     def segment(self, image: Image) -> Segmentation:
-        """Cached path: one image embedding, then the decoder once per prompt."""
+        """Cached path: one image embedding, then the prompts' decoder passes, batched."""
         self._load()
         rgb = rgb_array(image, self.name)
         embed = self.image_embedding(rgb)
         canvas: list[Any] = []
+        step = self.prompt_batch()
         with self._torch.inference_mode():
-            for k, (text, mask, _) in enumerate(self._text, start=1):
-                scores, keep, masks = self._decode(embed, text, mask)
-                self.stats["decoder_runs"] += 1
-                self._paint(masks, scores, keep, k, canvas)
-                del masks
+            for first in range(0, len(self._text), step):
+                part = [(text, mask) for text, mask, _ in self._text[first:first + step]]
+                for k, (scores, keep, masks) in enumerate(self._decode_many(embed, part), start=first + 1):
+                    self._paint(masks, scores, keep, k, canvas)
+                del part
         return self._finish(canvas, rgb.shape[:2], image.stamp_ns)
 
     def segment_uncached(self, image: Image) -> Segmentation:
@@ -349,7 +417,7 @@ class Sam3Segmenter:
 
     def close(self) -> None:
         self._model = None
-        self._embed = None
+        self._embed = self._shared = None
         self._embed_key = None
 
 

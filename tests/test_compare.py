@@ -425,6 +425,26 @@ def test_a_table_turned_is_fitted_leg_pair_on_leg_pair_whatever_heading_its_box_
     assert abs(mv[0].rotation_deg - 57.0) < 3.0
 
 
+def test_a_couch_seen_as_its_front_and_a_side_is_fitted_end_to_end_not_slid_along_its_front():
+    # A saw a couch's 2 m front and its left side (an L); B, after the couch moved 1.3 m along its
+    # front and 0.25 m back, saw the front alone (its right side went to a wall run). Point-to-point
+    # matching slides a face along its length; the fit lines the front's ends up, and B's floor on
+    # either side of the couch rules out the slid placements that would put A's side on it
+    from semmap.compare.changes import _fit_motion
+
+    front = np.stack([np.arange(41) * RES, np.zeros(41)], axis=1)
+    side = np.stack([np.zeros(16), -np.arange(1, 17) * RES], axis=1)
+    src = np.concatenate([front, side])
+    dst = front + (1.3, -0.25)
+
+    def b_floor(xy):  # everything but the couch's own footprint in B
+        return ~((xy[:, 0] >= 1.3 - RES) & (xy[:, 0] <= 3.3 + RES) & (xy[:, 1] >= -1.05 - RES)
+                 & (xy[:, 1] <= -0.25 + RES))
+
+    motion = _fit_motion(src, dst, (0.0, math.pi / 2, -math.pi / 2, math.pi), RES, b_floor)
+    assert np.allclose(motion[:2], (1.3, -0.25), atol=0.02) and abs(motion[2]) < math.radians(1)
+
+
 def test_a_table_pushed_by_less_than_its_width_is_a_short_move():
     # pushed 40 cm across its 50 cm width: B's back legs stand 4 cm from where A's front legs stood,
     # so neither session's table has changed in the main; each saw floor where the other saw two legs

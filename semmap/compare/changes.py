@@ -410,21 +410,47 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
         shift = float(np.linalg.norm(se2_apply(pose, cs[None])[0] - cs))
         return (explained_b / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
 
+    # the best hypotheses of each turn are refined: a turn whose raw placements all sit a little off
+    # (an L of a couch's front and side in A, its front alone in B: no leg pairing lines them up)
+    # may still refine to the best motion of all, and must not lose its place to other turns'
     hyps = []
     for turn in tuple(turns) + _leg_pair_turns(legs_a, legs_b, 2.0 * res, turns):
         c, s_ = math.cos(turn), math.sin(turn)
         rot = np.array([[c, -s_], [s_, c]])
-        for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b]:
+        at_turn = []
+        for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b] + _end_shifts(src @ rot.T, dst):
             pose = np.array([t[0], t[1], turn])
-            hyps.append((score(pose), pose))
+            at_turn.append((score(pose), pose))
+        at_turn.sort(key=lambda h: -h[0])
+        hyps += [(sc, pose, rank) for rank, (sc, pose) in enumerate(at_turn)]
     hyps.sort(key=lambda h: -h[0])
     best, best_score = hyps[0][1], -math.inf
-    for _, pose in hyps[:6]:
+    for _, pose, rank in hyps:
+        if rank >= _REFINED_PER_TURN and not any(pose is h[1] for h in hyps[:6]):
+            continue
         refined, _ = _icp(src, dst, pose)
         sc = score(refined)
         if sc > best_score + 1e-9:
             best, best_score = refined, sc
     return best
+
+
+def _end_shifts(src: NDArray[np.float64], dst: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Shifts that line up the ends of ``src`` with those of ``dst`` along ``dst``'s long axis (its
+    centroids across it): a face seen whole in both sessions, a couch's front, whose centroids do not
+    correspond when one session also saw a side of it. ICP slides such faces along their length."""
+    if src.shape[0] < 2 or dst.shape[0] < 2:
+        return []
+    c = dst - dst.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    u, v = vt[0], vt[1]
+    ps, pd = src @ u, dst @ u
+    across = float(dst.mean(axis=0) @ v - src.mean(axis=0) @ v)
+    return [float(pd.min() - ps.min()) * u + across * v, float(pd.max() - ps.max()) * u + across * v]
+
+
+#: raw motion hypotheses refined by ICP: the best six of all, and the best two of each candidate turn
+_REFINED_PER_TURN = 2
 
 
 def _reference_point(src: NDArray[np.float64], dst: NDArray[np.float64], motion: NDArray[np.float64]

@@ -94,6 +94,25 @@ def test_a_pot_no_camera_labelled_moved_is_one_move_and_a_bigger_round_thing_is_
         assert counts["object_moved"] == 0 and counts["static_added"] == counts["static_removed"] == 1, counts
 
 
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_pot_the_camera_labelled_in_one_session_only_moved_is_one_move(labelled_in):
+    # the pot stood out of the camera's view in one tour: its rim is a plain static arc there, one blob
+    # with no legs to fit. The labelled pot and the arc are arcs of one circle: a potted plant moved,
+    # measured between the circles' centres, not a pot gone and a static obstacle added
+    a, b = Room(), Room()
+    here, there = ((3.0, 3.0), 0.2, math.pi), ((4.2, 3.5), 0.2, -math.pi / 2)
+    (a if labelled_in == "A" else b).round.append(("potted plant", *(here if labelled_in == "A" else there)))
+    (b if labelled_in == "A" else a).unlabelled_round.append(there if labelled_in == "A" else here)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["static_added"] == counts["static_removed"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "potted plant"
+    assert np.allclose(_world(mv.from_xy), (3.0, 3.0), atol=0.03)
+    assert np.allclose(_world(mv.to_xy), (4.2, 3.5), atol=0.03)
+    assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
+
+
 def test_an_unmoved_object_and_a_person_are_no_change():
     a, b = Room(), Room()
     for room in (a, b):

@@ -639,8 +639,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
     ``max_move_m``, when a rigid motion lays at least ``unlabelled_fit`` of each one's cells on the
     other's and ``min_fit_legs`` legs or more of each on the other's (a chair's four legs on four
-    legs; one or two legs fit any blob). The piece becomes an object of the same class. Pairs are
-    (A's, B's).
+    legs; one or two legs fit any blob), or both are arcs of circles of one radius (a pot, seen as its
+    rim). The piece becomes an object of the same class. Pairs are (A's, B's).
 
     An object moved by less than its own size may put legs where legs of its own stood: those are
     no change, so the piece holds only the others (two of a chair's four). ``other_obstacles`` (the
@@ -657,6 +657,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         own = _cells_near(other_obstacles, o.cells, 1.5) if other_obstacles is not None else None
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
         best, best_q, best_cells = None, 0.0, None
+        o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
         for k, piece in enumerate(pieces):
             if k in used or piece.shape[0] < 2:
                 continue
@@ -675,8 +676,14 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             q, legs = _shape_fit(src, dst, turns, res)
-            if q >= st.unlabelled_fit and legs >= st.min_fit_legs and q > best_q:
-                best, best_q, best_cells = k, q, cells
+            if q < st.unlabelled_fit or q <= best_q:
+                continue
+            if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle
+                if o_arc is None:
+                    o_arc = (_piece_arc(o.cells, length, spec),)
+                if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
+                    continue
+            best, best_q, best_cells = k, q, cells
         if best is None or best_cells is None:
             continue
         used.add(best)

@@ -64,6 +64,9 @@ class Room:
         self.round: list[tuple[str, tuple[float, float], float, float]] = []
         #: round things no camera labelled: centre, radius and the bearing seen from; static obstacles
         self.unlabelled_round: list[tuple[tuple[float, float], float, float]] = []
+        #: faces of furniture the camera labelled (a couch's front seen from the room): class and the
+        #: segment (x0, y0, x1, y1), listed as an object
+        self.faces: list[tuple[str, tuple[float, float, float, float]]] = []
 
     def legs(self, c, size, yaw):
         """The four legs of a box object, world frame."""
@@ -139,6 +142,17 @@ class Room:
             fp = se2_apply(t_map_world, np.asarray(c, float) + radius * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]))
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (2 * radius, radius), 0.0,
                                          int(held.sum()), 5, tuple(map(tuple, fp))))
+        for cls, (x0, y0, x1, y1) in self.faces:
+            n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
+            line = np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1)
+            held = np.zeros(spec.shape, bool)
+            mark(line, occ, semi, held)
+            index[held] = len(objs)
+            cm = se2_apply(t_map_world, line.mean(axis=0)[None])[0]
+            fp = se2_apply(t_map_world, np.array([[x0, y0], [x1, y1], [x1, y1], [x0, y0]], float))
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (math.hypot(x1 - x0, y1 - y0), RES),
+                                         float(math.atan2(y1 - y0, x1 - x0) - T_world_map[2]), int(held.sum()), 5,
+                                         tuple(map(tuple, fp))))
         for c, radius, seen_from in self.unlabelled_round:
             ang = seen_from + np.linspace(-math.pi / 2, math.pi / 2, 120)
             mark(np.asarray(c, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)]), occ)

@@ -233,6 +233,23 @@ def test_the_far_face_of_a_wall_one_session_saw_from_one_side_is_no_change():
     assert counts["static_added"] == 1
 
 
+def test_a_couch_pulled_15_cm_from_the_wall_is_a_change_though_its_new_front_runs_along_the_old_one():
+    # A saw the front of a couch standing against the north wall, labelled; B, after it was pulled
+    # 15 cm into the room, saw its front unlabelled (out of the camera's view). Two parallel faces 15 cm
+    # apart look like the two faces of a partition, but the old one is furniture, not wall: the new
+    # front is added, over its whole length
+    a, b = Room(), Room()
+    a.faces.append(("couch", (1.0, 7.2, 3.0, 7.2)))
+    a.unseen.append((1.0, 7.2, 3.0, 8.0))
+    b.walls.append((1.0, 7.05, 3.0, 7.05))
+    b.unseen.append((1.0, 7.05, 3.0, 8.0))
+    r = _diff(a, b)
+    assert r.left_out["wall_faces"] == 0
+    added = _mask_world(r, 1)
+    front = added[np.abs(added[:, 1] - 7.05) <= 0.05]
+    assert front.shape[0] >= 30 and np.ptp(front[:, 0]) >= 1.8, front.shape
+
+
 def test_a_face_one_session_saw_only_edge_on_is_no_change_and_a_new_thin_wall_across_its_floor_is():
     # a 40 cm pillar: A saw its north and east faces only, and its beams grazing along the west and
     # south faces marked the cells on them free (its inside A never observed). B saw all four faces.

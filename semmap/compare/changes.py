@@ -1193,9 +1193,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, value, own_occ, other_occ, other_free in (
-            ("static_added", added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a),
-            ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b)):
+    for kind, cells, value, own_occ, other_occ, other_free, other_semi in (
+            ("static_added", added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a, lo.semi_a),
+            ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b, lo.semi_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
         # when three or more stand within a table's span of each other: furniture, not noise
@@ -1207,7 +1207,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             found, ids, kept = found + f2, ids + [i + off for i in i2], kept | k2
         touching = set(np.unique(labels[near_object_change & (labels > 0)]).tolist())
         slices = ndimage.find_objects(labels)
-        faces = _strips_along(labels, slices, ids, other_occ, 2.0 * tol)
+        # (a wall's far face runs along the other session's wall, not along its furniture: a couch's
+        # front 20 cm out from where the other session saw it is the couch pulled from the wall)
+        faces = _strips_along(labels, slices, ids, other_occ & ~other_semi, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
         hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0)
         left_out["hidden_faces"] += len(hidden)

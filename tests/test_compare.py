@@ -407,6 +407,31 @@ def test_a_chair_the_camera_labelled_in_one_session_only_moved_is_one_move(label
 
 
 @pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_chair_moved_from_beside_a_person_and_labelled_at_one_end_only_is_one_move(labelled_in):
+    # where the chair was not labelled a person stood beside it: the chair's legs within a step of the
+    # person are evidence the diff would otherwise leave to people. A chair's four legs fit the labelled
+    # chair's four: a chair moved, and no change where the person stood
+    here, there = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0), ("chair", (6.3, 4.5), (0.45, 0.45), math.radians(30))
+    a, b = Room(), Room()
+    unlabelled_room = b if labelled_in == "A" else a
+    if labelled_in == "A":
+        a.objects.append(here)
+        b.unlabelled.append(there)
+        b.people.append((6.3 + 0.45, 4.5))
+    else:
+        a.unlabelled.append(here)
+        a.people.append((6.0 + 0.45, 3.0))
+        b.objects.append(there)
+    assert unlabelled_room.people
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    assert counts["static_added"] == counts["static_removed"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair" and mv.displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
+
+
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
 def test_a_chair_moved_less_than_its_size_onto_its_own_legs_places_is_one_move(labelled_in):
     # pushed back by its legs' spacing (0.34 m) with no camera label at one end: two of its legs now stand
     # where the other two stood, so those are no change and only two legs are new. Two legs fit any

@@ -1076,8 +1076,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         off_semi_a, off_semi_b = ~_dilate(semi_a, near), ~_dilate(semi_b, near)
         # (and the other session's unlabelled obstacles on the object's own cells: legs put back where
         # legs of its own stood)
-        sides = ((only_a, gone, added & off_semi_b, True, obst_b & off_semi_b),
-                 (only_b, new, removed & off_semi_a, False, obst_a & off_semi_a))
+        # (pieces by people count, the people's own cells left out: a leg a person stood beside is no
+        # less a leg, and the fit needs three legs on three legs, which two people's legs do not make)
+        sides = ((only_a, gone, added_raw & off_semi_b & ~lo.dyn_b, True, obst_b & off_semi_b),
+                 (only_b, new, removed_raw & off_semi_a & ~lo.dyn_a, False, obst_a & off_semi_a))
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue

@@ -12,7 +12,7 @@ nothing changed.
 The random pairs' seeds are the scoring seeds (1000 and up), never used while developing (that
 used 100-199). Tours and maps are kept in ``--work`` and reused when present.
 
-    python tools/bench_diff.py                               # named + 4 random pairs, ~20 min
+    python tools/bench_diff.py                               # named + 8 random pairs, ~35 min
     python tools/bench_diff.py --pairs ward random:1001      # some pairs
     python tools/bench_diff.py --big-only                    # the 100 m x 100 m timing only
 """
@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO / "tools"))
 from benchlib import machine
 
 NAMED = {"ward": ("ward", "ward_b"), "office": ("office", "office_b")}
-SCORING_SEEDS = (1001, 1002, 1003, 1004)
+SCORING_SEEDS = (1001, 1002, 1003, 1004, 1005, 1006, 1007, 1008)
 
 
 def _pair_names(pair: str) -> tuple[str, str]:

@@ -113,6 +113,20 @@ def test_a_pot_the_camera_labelled_in_one_session_only_moved_is_one_move(labelle
     assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
 
 
+@pytest.mark.parametrize("hidden_to", [2.98, 3.12])
+def test_a_pot_gone_whose_place_the_other_session_saw_half_of_is_gone_when_all_it_saw_was_floor(hidden_to):
+    # B saw floor on about half of the rim A saw (the rest out of its view): every cell it saw is floor,
+    # so the pot went. Seeing a fifth of it is too little to say
+    a, b = Room(), Room()
+    a.round.append(("potted plant", (3.0, 3.0), 0.2, math.pi))
+    b.unseen.append((2.7, 2.7, 3.1, hidden_to))
+    r = _diff(a, b)
+    if hidden_to < 3.0:
+        assert r.counts()["object_disappeared"] == 1, r.counts()
+    else:
+        assert r.counts()["object_disappeared"] == 0 and r.left_out["objects_unobserved_in_b"] == 1, r.counts()
+
+
 def test_an_unmoved_object_and_a_person_are_no_change():
     a, b = Room(), Room()
     for room in (a, b):

@@ -795,6 +795,11 @@ def _elongated(o: _Obj) -> bool:
     return o.cells.shape[0] >= 4 and length >= 1.3 * max(width, 1e-3)
 
 
+#: an object the other session saw less than ``seen_share`` of is still gone (or new) when it saw at
+#: least this many of its cells, and 40 % of them, and every one of those was floor
+_UNANIMOUS_CELLS = 5
+
+
 def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArray[np.bool_],
                      other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
                      left_out: dict[str, int], key: str) -> list[_Obj]:
@@ -808,7 +813,13 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
             continue
         r, c = o.cells[:, 0], o.cells[:, 1]
         clear = ~people[r, c] | still[r, c]
-        if clear.sum() < max(2, 0.3 * r.size) or float(other_observed[r, c][clear].mean()) < st.seen_share:
+        seen = other_observed[r, c] & clear
+        # the other session saw enough of it; or saw less, but saw floor on every cell it saw (a pot's
+        # rim seen half from its new place: floor where it stood, the rest behind it)
+        unanimous = seen.sum() >= _UNANIMOUS_CELLS and float(seen.sum()) >= 0.4 * r.size \
+            and bool(changed[r, c][seen].all())
+        if clear.sum() < max(2, 0.3 * r.size) or (float(other_observed[r, c][clear].mean()) < st.seen_share
+                                                  and not unanimous):
             left_out[key] += 1
             continue
         if float(changed[r, c][clear].mean()) >= 0.5:

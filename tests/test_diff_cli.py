@@ -235,3 +235,24 @@ def test_a_signal_during_a_long_diff_leaves_a_whole_folder_or_none(tmp_path, sig
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, 0)
         pytest.fail("a process of the diff is still running")
+
+
+def test_the_overlays_labels_at_one_place_do_not_cover_each_other():
+    # two objects gone side by side (two chairs of a ward room): their labels go at different heights
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from semmap.compare.write import _label_placer
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    ax.set_xlim(0, 10)
+    ax.set_ylim(0, 10)
+    place = _label_placer(ax, fig.dpi)
+    offsets = [place((5.0, 5.0), "chair gone", dx=8.0), place((5.1, 5.0), "chair gone", dx=8.0),
+               place((5.0, 5.05), "potted plant 1.20 m")]
+    heights = [dy for _, dy in offsets]
+    assert len(set(heights)) == 3 and min(abs(a - b) for a in heights for b in heights if a != b) >= 9.0
+    assert place((1.0, 1.0), "tv 2.29 m") == (4.0, -2.0)  # alone: beside its point
+    plt.close(fig)

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import matplotlib
@@ -54,6 +56,35 @@ TYPE_PLURALS = {
     "no_longer_covered": "areas no longer covered",
 }
 
+
+
+#: behind a label: white, half see-through, so markers and changed cells under it do not hide it
+_LABEL_BOX = {"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7}
+
+
+def _label_placer(ax: Any, dpi: float) -> Callable[..., tuple[float, float]]:
+    """Offsets (points) for labels at map points, each clear of the labels placed before it: the first
+    of a few heights beside its point whose box (7 pt text) overlaps none of theirs, else the least
+    crowded. Call after the axes' limits are set."""
+    boxes: list[tuple[float, float, float, float]] = []  # placed labels, display pixels
+    px = dpi / 72.0
+
+    def place(xy: Sequence[float], text: str, dx: float = 4.0) -> tuple[float, float]:
+        x0, y0 = ax.transData.transform((float(xy[0]), float(xy[1])))
+        w, h = 7 * 0.6 * len(text) * px, 9 * px
+        best, best_hits = (dx, 4.0 - 6.0), None
+        for dy in (-2.0, 9.0, -13.0, 20.0, -24.0, 31.0, -35.0):
+            bx, by = x0 + dx * px, y0 + dy * px
+            hits = sum(1 for (a, b, c, d) in boxes if bx < c and a < bx + w and by < d and b < by + h)
+            if best_hits is None or hits < best_hits:
+                best, best_hits = (dx, dy), hits
+            if hits == 0:
+                break
+        bx, by = x0 + best[0] * px, y0 + best[1] * px
+        boxes.append((bx, by, bx + w, by + h))
+        return best
+
+    return place
 
 def object_name(c: Change) -> str:
     """What an object change is of: its class, or "unlabelled object" for furniture no camera
@@ -155,18 +186,20 @@ def _overlay(r: DiffResult, path: Path) -> None:
     fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.2, 3.5, 12.0))
     fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
     ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
-    for k, c in enumerate(r.changes):
-        dy = 4 - 11 * (k % 3)  # neighbouring labels at different heights
+    place = _label_placer(ax, fig.dpi)
+    for c in r.changes:
         if c.type == "object_moved" and c.from_xy and c.to_xy:
             ax.add_patch(FancyArrowPatch(c.from_xy, c.to_xy, arrowstyle="-|>", mutation_scale=12, lw=1.6,
                                          color=_MOVED))
-            ax.annotate(f"{object_name(c)} {c.displacement_m:.2f} m", c.to_xy, xytext=(4, dy),
-                        textcoords="offset points", fontsize=7, color=_MOVED)
+            text = f"{object_name(c)} {c.displacement_m:.2f} m"
+            ax.annotate(text, c.to_xy, xytext=place(c.to_xy, text), textcoords="offset points", fontsize=7,
+                        color=_MOVED, zorder=5, bbox=_LABEL_BOX)
         elif c.type in ("object_appeared", "object_disappeared"):
             col = _ADDED if c.type == "object_appeared" else _REMOVED
             ax.plot(*c.centroid, marker="o", ms=14, mfc="none", mec=col, mew=1.5)
-            ax.annotate(f"{c.class_name} {'new' if c.type == 'object_appeared' else 'gone'}", c.centroid,
-                        xytext=(8, dy - 6), textcoords="offset points", fontsize=7, color=col)
+            text = f"{c.class_name} {'new' if c.type == 'object_appeared' else 'gone'}"
+            ax.annotate(text, c.centroid, xytext=place(c.centroid, text, dx=8.0), textcoords="offset points",
+                        fontsize=7, color=col, zorder=5, bbox=_LABEL_BOX)
         elif c.type in ("static_added", "static_removed"):
             col = _ADDED if c.type == "static_added" else _REMOVED
             ax.plot(*c.centroid, marker="s", ms=12, mfc="none", mec=col, mew=1.2)

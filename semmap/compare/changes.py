@@ -425,8 +425,8 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
         hyps += [(sc, pose, rank) for rank, (sc, pose) in enumerate(at_turn)]
     hyps.sort(key=lambda h: -h[0])
     best, best_score = hyps[0][1], -math.inf
-    for _, pose, rank in hyps:
-        if rank >= _REFINED_PER_TURN and not any(pose is h[1] for h in hyps[:6]):
+    for i, (_, pose, rank) in enumerate(hyps):
+        if i >= 6 and rank >= _REFINED_PER_TURN:
             continue
         refined, _ = _icp(src, dst, pose)
         sc = score(refined)

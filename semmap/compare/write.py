@@ -72,7 +72,7 @@ def _label_placer(ax: Any, dpi: float) -> Callable[..., tuple[float, float]]:
     def place(xy: Sequence[float], text: str, dx: float = 4.0) -> tuple[float, float]:
         x0, y0 = ax.transData.transform((float(xy[0]), float(xy[1])))
         w, h = 7 * 0.6 * len(text) * px, 9 * px
-        best, best_hits = (dx, 4.0 - 6.0), None
+        best, best_hits = (dx, -2.0), None
         for dy in (-2.0, 9.0, -13.0, 20.0, -24.0, 31.0, -35.0):
             bx, by = x0 + dx * px, y0 + dy * px
             hits = sum(1 for (a, b, c, d) in boxes if bx < c and a < bx + w and by < d and b < by + h)

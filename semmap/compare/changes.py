@@ -413,12 +413,14 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
     # the best hypotheses of each turn are refined: a turn whose raw placements all sit a little off
     # (an L of a couch's front and side in A, its front alone in B: no leg pairing lines them up)
     # may still refine to the best motion of all, and must not lose its place to other turns'
+    axes_b = np.linalg.svd(dst - cd, full_matrices=False)[2] if dst.shape[0] >= 2 else None  # once, for every turn
     hyps = []
     for turn in tuple(turns) + _leg_pair_turns(legs_a, legs_b, 2.0 * res, turns):
         c, s_ = math.cos(turn), math.sin(turn)
         rot = np.array([[c, -s_], [s_, c]])
         at_turn = []
-        for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b] + _end_shifts(src @ rot.T, dst):
+        for t in [cd - rot @ cs] + [lb - rot @ la for la in legs_a for lb in legs_b] + _end_shifts(src @ rot.T, dst,
+                                                                                                 axes_b):
             pose = np.array([t[0], t[1], turn])
             at_turn.append((score(pose), pose))
         at_turn.sort(key=lambda h: -h[0])
@@ -435,15 +437,15 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
     return best
 
 
-def _end_shifts(src: NDArray[np.float64], dst: NDArray[np.float64]) -> list[NDArray[np.float64]]:
-    """Shifts that line up the ends of ``src`` with those of ``dst`` along ``dst``'s long axis (its
-    centroids across it): a face seen whole in both sessions, a couch's front, whose centroids do not
-    correspond when one session also saw a side of it. ICP slides such faces along their length."""
-    if src.shape[0] < 2 or dst.shape[0] < 2:
+def _end_shifts(src: NDArray[np.float64], dst: NDArray[np.float64],
+                axes: NDArray[np.float64] | None) -> list[NDArray[np.float64]]:
+    """Shifts that line up the ends of ``src`` with those of ``dst`` along ``dst``'s long axis
+    (``axes``: its principal axes, rows; None for fewer than two cells), its centroids across it: a
+    face seen whole in both sessions, a couch's front, whose centroids do not correspond when one
+    session also saw a side of it. ICP slides such faces along their length."""
+    if axes is None or src.shape[0] < 2:
         return []
-    c = dst - dst.mean(axis=0)
-    _, _, vt = np.linalg.svd(c, full_matrices=False)
-    u, v = vt[0], vt[1]
+    u, v = axes[0], axes[1]
     ps, pd = src @ u, dst @ u
     across = float(dst.mean(axis=0) @ v - src.mean(axis=0) @ v)
     return [float(pd.min() - ps.min()) * u + across * v, float(pd.max() - ps.max()) * u + across * v]

@@ -9,6 +9,7 @@ or any other tool (``map.yaml`` + image) has only the occupancy: the diff is geo
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..config import CleaningConfig
 from ..errors import ConfigError, MapFolderError, SemmapError
@@ -193,12 +195,17 @@ def _object_index(folder: Path, m: MapFolder) -> NDArray[np.int32] | None:
         return None
     # one for one by class and centroid, in any order: two objects whose centroids tie in y are
     # listed in the order the build's uncropped grid gave them, which the cropped one may not
+    # (candidates from a tree of the listed centroids: a building may list thousands of objects)
+    tol = 2e-3
+    listed = np.array([b.centroid for b in m.objects], np.float64)
+    near = cKDTree(listed).query_ball_point(np.array([a.centroid for a in objs], np.float64), tol * math.sqrt(2))
     place = np.full(len(objs) + 1, -1, np.int32)  # regrouped index -> listed index; [-1] stays -1
     taken = np.zeros(len(m.objects), bool)
     for k, a in enumerate(objs):
-        for j, b in enumerate(m.objects):
-            if not taken[j] and a.class_name == b.class_name and abs(a.centroid[0] - b.centroid[0]) <= 2e-3 \
-                    and abs(a.centroid[1] - b.centroid[1]) <= 2e-3:
+        for j in sorted(near[k]):
+            b = m.objects[j]
+            if not taken[j] and a.class_name == b.class_name and abs(a.centroid[0] - b.centroid[0]) <= tol \
+                    and abs(a.centroid[1] - b.centroid[1]) <= tol:
                 place[k], taken[j] = j, True
                 break
         else:

@@ -45,7 +45,7 @@ from ..geometry import (
     unproject_pixels,
 )
 from ..records import Calibration, Mobility, PaintedScan, Scan, Segmentation
-from ..segment.select import SkippedFrame
+from ..segment.select import SkippedFrame, every_frame
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
@@ -333,7 +333,7 @@ class LabelMemory:
 def label_memory(seg: SegmentationConfig, resolution: float) -> LabelMemory | None:
     """The label memory a build with segmentation settings ``seg`` and map cells of ``resolution`` needs
     (None: every frame is segmented)."""
-    if seg.select == "all" and seg.max_rate is None and seg.max_frames is None:
+    if every_frame(seg):
         return None
     return LabelMemory(resolution, seg.transfer_window)
 

@@ -38,11 +38,16 @@ from ..records import Segmentation
 if TYPE_CHECKING:
     from ..io.tf import TfOdometry
 
-__all__ = ["FrameSelector", "OdometrySource", "SkippedFrame"]
+__all__ = ["FrameSelector", "OdometrySource", "SkippedFrame", "every_frame"]
 
 #: the most frames the budget's bucket holds: a frame wanted after a quiet spell is not refused, and the
 #: average rate still holds over any few seconds
 _BUCKET = 2.0
+
+
+def every_frame(cfg: SegmentationConfig) -> bool:
+    """Whether the settings segment every frame: no selection and no budget."""
+    return cfg.select == "all" and cfg.max_rate is None and cfg.max_frames is None
 
 
 @dataclass(frozen=True)
@@ -78,6 +83,7 @@ class FrameSelector:
         self.interval_ns = int(interval * 1e9)
         self.rate = cfg.max_rate
         self.max_frames = cfg.max_frames
+        self.trivial = every_frame(cfg)  # every frame is segmented: nothing else needs reading
         self.odometry = None if self.trivial else odometry
         self._pose: NDArray[np.float64] | None = None  # the latest odometry pose
         self._pose_ns: int | None = None
@@ -88,11 +94,6 @@ class FrameSelector:
         self._undo: tuple[int | None, NDArray[np.float64] | None] | None = None
         self.selected = 0
         self.skipped = 0
-
-    @property
-    def trivial(self) -> bool:
-        """Every frame is segmented: nothing else needs reading."""
-        return self.mode == "all" and self.rate is None and self.max_frames is None
 
     def spread_over(self, seconds: float) -> None:
         """The tour lasts ``seconds``: a ``max_frames`` budget becomes the rate that spends it over the tour

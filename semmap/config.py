@@ -305,6 +305,10 @@ class SegmentationConfig(_Model):
     max_frames: int | None = Field(None, gt=0, description="a budget: at most this many frames segmented in all, "
                                                            "spread over the tour as max_rate would (null: no "
                                                            "limit)")
+    max_seconds: float | None = Field(None, gt=0, description="a budget: at most this many seconds of model time in "
+                                                               "all, spread over the tour as max_frames would (a "
+                                                               "frame from the mask cache counts the time it took "
+                                                               "when it was segmented; null: no limit)")
 
     @model_validator(mode="after")
     def _backend_is_always_set(self) -> SegmentationConfig:

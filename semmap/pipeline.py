@@ -361,7 +361,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             scans_painted=ps.painted,
             frame_selection=FrameSelectionSummary(
                 select=cfg.segmentation.select, max_rate=cfg.segmentation.max_rate,
-                max_frames=cfg.segmentation.max_frames,
+                max_frames=cfg.segmentation.max_frames, max_seconds=cfg.segmentation.max_seconds,
                 frames_segmented=run.image_counts.get("images", 0),
                 frames_skipped=run.image_counts.get("skipped_frames", 0),
                 scans_from_memory=ps.transferred, returns_labelled_from_memory=ps.points_transferred,

@@ -29,7 +29,7 @@ from semmap.io.tour import load_build_config
 DATA = Path(__file__).parent / "data"
 
 #: the frame selection's options, which every backend takes (segmentation.select)
-SELECT = {"select", "select_distance", "select_angle", "select_interval", "max_rate", "max_frames",
+SELECT = {"select", "select_distance", "select_angle", "select_interval", "max_rate", "max_frames", "max_seconds",
           "transfer_window",
           "need_frames", "need_cells", "need_cell"}
 

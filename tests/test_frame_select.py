@@ -75,6 +75,40 @@ def test_a_frame_budget_is_spread_over_the_tour_and_never_overspent():
     assert sum(sel.want(k * S // 15) for k in range(15 * 60)) == 10
 
 
+def _run_timed(sel, seconds_per_frame, tour_s=60.0, hz=15):
+    """Frames of a ``hz`` camera over ``tour_s``: the ones taken, each costing ``seconds_per_frame(k)``."""
+    sel.spread_over(tour_s)
+    taken = []
+    for k in range(int(hz * tour_s)):
+        stamp = k * S // hz
+        if sel.want(stamp):
+            taken.append(k)
+            sel.timed(seconds_per_frame(len(taken)), stamp)
+    return taken
+
+
+def test_a_model_time_budget_is_spread_over_the_tour_and_never_overspent():
+    sel = FrameSelector(TopicSegmentation(max_seconds=6.0))
+    assert not sel.trivial
+    taken = _run_timed(sel, lambda n: 0.5)  # a 0.5 s model: 12 frames in 6 s
+    assert 11 <= len(taken) <= 12 and sel.model_seconds <= 6.0 + 0.5  # the last frame may start before the end
+    assert taken[-1] > 15 * 50 and max(np.diff(taken)) < 15 * 10  # spread, not spent at the start
+    # a model that turns out cheaper after its first frame (a warm-up): the budget buys more frames later
+    sel = FrameSelector(TopicSegmentation(max_seconds=6.0))
+    taken = _run_timed(sel, lambda n: 2.0 if n == 1 else 0.1)
+    assert sel.model_seconds <= 6.0 + 2.0 and len(taken) > 12
+    assert taken[-1] > 15 * 45
+
+
+def test_a_model_time_budget_holds_under_a_frame_budget_and_a_rate():
+    sel = FrameSelector(TopicSegmentation(max_seconds=100.0, max_frames=20))
+    assert len(_run_timed(sel, lambda n: 0.1)) == 20  # the frame count binds
+    sel = FrameSelector(TopicSegmentation(max_seconds=100.0, max_rate=0.5))
+    assert len(_run_timed(sel, lambda n: 0.1)) == pytest.approx(30, abs=2)  # the rate binds
+    sel = FrameSelector(TopicSegmentation(max_seconds=3.0, max_rate=5.0))
+    assert len(_run_timed(sel, lambda n: 0.5)) <= 7  # the seconds bind
+
+
 def test_the_label_memory_transfers_furniture_once_two_frames_agree_and_a_person_briefly():
     mem = LabelMemory(0.05, window_s=2.0)
     person, wall, chair = ([[1.01, 1.01], [1.02, 1.03]], [[1.04, 1.01]], [[2.0, 2.0]])

@@ -203,6 +203,29 @@ def test_a_rebuild_with_a_frame_selection_runs_no_model_either(ros1_tour, semant
     assert second.summary.painting.frame_selection == fs  # the same frames, from the cache
 
 
+def test_a_model_time_budget_is_kept_and_a_rebuild_selects_the_same_frames_from_the_cache(ros1_tour, semantic_onnx,
+                                                                                           tmp_path):
+    from semmap.pipeline import build
+
+    cache = tmp_path / "cache"
+    build(ros1_tour.out, tmp_path / "m0", overrides={"segmentation": {
+        "backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(tmp_path / "probe")}})
+    per_frame = float(np.median([float(np.load(p)["model_seconds"]) for p in (tmp_path / "probe").glob("*/*.npz")]))
+    budget = 15 * per_frame  # about fifteen frames' worth of model time, of the 40 (another run's times vary)
+    seg = {"backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(cache), "max_seconds": budget}
+    first = build(ros1_tour.out, tmp_path / "m1", overrides={"segmentation": seg})
+    fs = first.summary.painting.frame_selection
+    entries = sorted(cache.glob("onnx-*/*.npz"))
+    assert fs.max_seconds == budget and fs.frames_segmented == len(entries) and fs.frames_skipped > 0
+    spent = sum(float(np.load(p)["model_seconds"]) for p in entries)
+    assert spent <= budget + max(float(np.load(p)["model_seconds"]) for p in entries)  # one frame over at most
+    assert 2 <= fs.frames_segmented < 40
+    mtimes = [p.stat().st_mtime_ns for p in entries]
+    second = build(ros1_tour.out, tmp_path / "m2", overrides={"segmentation": seg})
+    assert [p.stat().st_mtime_ns for p in sorted(cache.glob("onnx-*/*.npz"))] == mtimes  # no model ran
+    assert second.summary.painting.frame_selection == fs  # the cached frames' own times spent the same budget
+
+
 # ---------------------------------------------------------------------------------------
 # eval-seg's protocol on a dataset built here
 

@@ -305,7 +305,9 @@ def camera_line(s: dict[str, Any]) -> str:
     used = "label images used for" if recorded else "model ran on"
     line = f"{used} {fs['frames_segmented']} of {total} frames (select: {fs['select']}"
     line += f", at most {fs['max_rate']:g} a second" if fs.get("max_rate") else ""
-    line += f", at most {fs['max_frames']} in all)" if fs.get("max_frames") else ")"
+    line += f", at most {fs['max_frames']} in all" if fs.get("max_frames") else ""
+    line += f", at most {fs['max_seconds']:g} s of model time" if fs.get("max_seconds") else ""
+    line += ")"
     if fs["scans_from_memory"]:
         line += f", {fs['scans_from_memory']} scans labelled from earlier frames"
     return line + wait

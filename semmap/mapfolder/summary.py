@@ -91,6 +91,7 @@ class FrameSelectionSummary(_Part):
     select: str
     max_rate: float | None
     max_frames: int | None = None
+    max_seconds: float | None = None
     frames_segmented: int
     frames_skipped: int
     #: scans paired with a skipped frame, which took labels cell by cell from the last segmented one

@@ -5,7 +5,8 @@
 
     DIR/<model key>/model.json          what the key stands for (backend, weights digest, options)
     DIR/<model key>/<stamp_ns>.npz      label (uint16), confidence (float32) and instance (uint16)
-                                        images (if any), image digest
+                                        images (if any), image digest, the model's seconds for it
+                                        (``max_seconds`` budgets count them on a rebuild)
 
 The **model key** is a digest of the backend name, the SHA-256 of the weights file (or
 folder) and the options that change the result (thresholds, input size, prompts, memory
@@ -23,6 +24,7 @@ import json
 import logging
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +123,8 @@ class CachedSegmenter:
             _atomic_write_text(meta, json.dumps(self.identity, indent=1, sort_keys=True))
         self.hits = 0
         self.misses = 0
+        #: the model's time for the last frame: measured, or as stored with a cached one (None: not stored)
+        self.last_model_seconds: float | None = None
         self._names: tuple[str, ...] | None = None
 
     @property
@@ -150,6 +154,7 @@ class CachedSegmenter:
                     return None
                 conf = z["confidence"] if "confidence" in z.files else None
                 instance = z["instance"] if "instance" in z.files else None
+                self.last_model_seconds = float(z["model_seconds"]) if "model_seconds" in z.files else None
                 return Segmentation(image.stamp_ns, z["label"], self.names, conf, instance)
         except (OSError, ValueError, KeyError) as exc:
             log.warning("%s: unreadable cache entry, segmenting again (%s)", p, exc)
@@ -162,8 +167,12 @@ class CachedSegmenter:
             self.hits += 1
             return seg
         self.misses += 1
+        _ = self.inner.names  # a model that loads on first use loads now: its start-up is not its time
+        t0 = time.perf_counter()
         seg = self.inner.segment(image)
-        arrays: dict[str, Any] = {"label": seg.label, "image_digest": np.array(digest)}
+        self.last_model_seconds = time.perf_counter() - t0
+        arrays: dict[str, Any] = {"label": seg.label, "image_digest": np.array(digest),
+                                  "model_seconds": np.array(self.last_model_seconds)}
         if seg.confidence is not None:
             arrays["confidence"] = seg.confidence
         if seg.instance is not None:

@@ -49,10 +49,10 @@ class ImageReader:
     """Segmentations of a camera topic, one per frame; the segmenter is created and the bag opened
     here, before the first frame is asked for (start-up, not work), and released by :meth:`close`.
 
-    With a frame selection (``segmentation.select``, ``max_rate``, ``max_frames``) the frames it does not
-    take come out as :class:`SkippedFrame`, before the model sees them; what the selector reads besides
-    the images (its :attr:`~FrameSelector.topics`) is read in the same pass. ``selector`` default: the
-    one ``seg_cfg`` asks for, without odometry.
+    With a frame selection (``segmentation.select``, ``max_rate``, ``max_frames``, ``max_seconds``) the
+    frames it does not take come out as :class:`SkippedFrame`, before the model sees them; what the
+    selector reads besides the images (its :attr:`~FrameSelector.topics`) is read in the same pass.
+    ``selector`` default: the one ``seg_cfg`` asks for, without odometry.
     ``counts`` gains ``images`` (segmented), ``skipped_frames``, ``bad_images`` and ``segment_ms``.
     """
 
@@ -64,6 +64,8 @@ class ImageReader:
         self._stack = contextlib.ExitStack()
         segmenter = create_segmenter(seg_cfg)
         self._stack.callback(segmenter.close)
+        if getattr(segmenter, "last_model_seconds", False) is False:  # no mask cache (which loads when it must)
+            _ = segmenter.names  # a model that loads on first use loads now: start-up, not its first frame's time
         try:
             opened = self._stack.enter_context(read_bag(bag))
         except BaseException:
@@ -106,8 +108,12 @@ class ImageReader:
                 selector.failed()
                 log.debug("skipped image on %s: %s", topic, exc)
                 continue
+            elapsed = time.perf_counter() - t0
             counts["images"] += 1
-            counts["segment_ms"] += int((time.perf_counter() - t0) * 1000)
+            counts["segment_ms"] += int(elapsed * 1000)
+            # the model's time for it: as measured, or as it was when the mask cache stored it
+            stored = getattr(segmenter, "last_model_seconds", None)
+            selector.timed(elapsed if stored is None else float(stored), img.stamp_ns)
             selector.segmented(seg)
             yield seg
 

@@ -14,7 +14,12 @@ frame did not see the same cells.
 * ``max_rate``: a budget on top of any of them, at most that many frames per second of tour on average
   (a token bucket holding at most two frames: a frame the selection wants waits for a token).
   ``max_frames``: at most that many in all, spent at the rate that spreads them over the tour's length
-  (from the bag's index), and never more.
+  (from the bag's index), and never more. ``max_seconds``: at most that much model time in all, spent the
+  same way: after each frame the seconds left, at the model's median time over its last five frames, become the rate
+  that spreads them over the rest of the tour. A frame read from the mask cache counts the time it took
+  when it was segmented, so a rebuild selects the frames the first build did and runs no model. (Model
+  time varies from run to run and machine to machine: ``max_frames`` is the budget that selects the same
+  frames everywhere.)
 
 A selector sees the bag's records in bag order (:meth:`FrameSelector.on_record`: the odometry, and
 whatever else its :attr:`~FrameSelector.topics` name), is asked about each camera frame before the model
@@ -25,6 +30,7 @@ runs (:meth:`~FrameSelector.want`), and is told what the model made of it
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -43,11 +49,13 @@ __all__ = ["FrameSelector", "OdometrySource", "SkippedFrame", "every_frame"]
 #: the most frames the budget's bucket holds: a frame wanted after a quiet spell is not refused, and the
 #: average rate still holds over any few seconds
 _BUCKET = 2.0
+#: ``max_seconds`` estimates the model's time per frame from this many of its last frames
+_RECENT = 5
 
 
 def every_frame(cfg: SegmentationConfig) -> bool:
     """Whether the settings segment every frame: no selection and no budget."""
-    return cfg.select == "all" and cfg.max_rate is None and cfg.max_frames is None
+    return cfg.select == "all" and cfg.max_rate is None and cfg.max_frames is None and cfg.max_seconds is None
 
 
 @dataclass(frozen=True)
@@ -83,6 +91,12 @@ class FrameSelector:
         self.interval_ns = int(interval * 1e9)
         self.rate = cfg.max_rate
         self.max_frames = cfg.max_frames
+        self.max_seconds = cfg.max_seconds
+        self._rate_cap = cfg.max_rate  # the rate the other budgets allow (max_seconds adjusts below it)
+        self._tour_s: float | None = None
+        self._first_ns: int | None = None
+        self.model_seconds = 0.0  # the model time spent so far (``max_seconds``)
+        self._recent: deque[float] = deque(maxlen=_RECENT)
         self.trivial = every_frame(cfg)  # every frame is segmented: nothing else needs reading
         self.odometry = None if self.trivial else odometry
         self._pose: NDArray[np.float64] | None = None  # the latest odometry pose
@@ -98,9 +112,12 @@ class FrameSelector:
     def spread_over(self, seconds: float) -> None:
         """The tour lasts ``seconds``: a ``max_frames`` budget becomes the rate that spends it over the tour
         (the lower of it and ``max_rate``); the count caps it too."""
+        if seconds > 0:
+            self._tour_s = seconds
         if self.max_frames is not None and seconds > 0:
             rate = self.max_frames / seconds
             self.rate = rate if self.rate is None else min(self.rate, rate)
+            self._rate_cap = self.rate
 
     @property
     def topics(self) -> list[str]:
@@ -146,7 +163,10 @@ class FrameSelector:
 
     def want(self, stamp_ns: int) -> bool:
         """Whether to segment the frame stamped ``stamp_ns``, budget included; counted either way."""
-        spent = self.max_frames is not None and self.selected >= self.max_frames
+        if self._first_ns is None:
+            self._first_ns = stamp_ns
+        spent = (self.max_frames is not None and self.selected >= self.max_frames) or (
+            self.max_seconds is not None and self.model_seconds >= self.max_seconds)
         if not spent and self.wanted(stamp_ns) and self._budget(stamp_ns):
             if self.rate is not None:
                 self._tokens -= 1.0
@@ -159,6 +179,28 @@ class FrameSelector:
 
     def segmented(self, seg: Segmentation) -> None:
         """What the model made of the frame just taken."""
+
+    def timed(self, seconds: float, stamp_ns: int) -> None:
+        """The model spent ``seconds`` on the frame stamped ``stamp_ns``, just taken: with ``max_seconds``,
+        the seconds left at the model's recent time per frame become the rate over the rest of the tour."""
+        self.model_seconds += max(0.0, seconds)
+        self._recent.append(max(0.0, seconds))
+        if self.max_seconds is None:
+            return
+        # the model's time per frame from its last few (a first frame's warm-up is soon forgotten)
+        per_frame = max(float(np.median(self._recent)), 1e-6)
+        frames_left = max(0.0, (self.max_seconds - self.model_seconds) / per_frame)
+        if self._tour_s is None or self._first_ns is None:
+            rate = None  # the tour's length unknown: the total still holds
+        else:
+            rest = max(self._tour_s - (stamp_ns - self._first_ns) * 1e-9, 1e-3)
+            rate = frames_left / rest
+        if self.rate is None and (rate is not None or self._rate_cap is not None):
+            self._tokens, self._tokens_ns = 0.0, stamp_ns  # this frame spent the first token
+        if rate is None:
+            self.rate = self._rate_cap
+        else:
+            self.rate = rate if self._rate_cap is None else min(self._rate_cap, rate)
 
     def failed(self) -> None:
         """The frame just taken could not be segmented: the next one is judged as if it had not been taken

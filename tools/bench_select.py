@@ -24,6 +24,7 @@ default.
 
     python tools/bench_select.py                        # the 20 scoring worlds + ward and office
     python tools/bench_select.py --seeds 0 1 2 3 --scenarios --modes all need
+    python tools/bench_select.py --camera-hz 15 --onnx yolo11n-seg.onnx --modes all need   # build speed
 """
 
 from __future__ import annotations
@@ -69,7 +70,8 @@ def fmt(v: Any, kind: str) -> str:
     return f"{100 * v:.2f} %" if kind == "pct" else f"{v:.3f}"
 
 
-def build_and_score(name: str, tour: Path, out: Path, mode: str, extra: dict[str, Any]) -> dict[str, Any]:
+def build_and_score(name: str, tour: Path, out: Path, mode: str, extra: dict[str, Any],
+                    score: bool = True) -> dict[str, Any]:
     from semmap.sim.score import score_map
 
     seg = dict(MODES[mode])
@@ -78,12 +80,35 @@ def build_and_score(name: str, tour: Path, out: Path, mode: str, extra: dict[str
     run_build(tour, out, overrides)
     wall = time.perf_counter() - t
     summary = json.loads((out / "summary.json").read_text())
-    s = score_map(tour, out)
+    s = score_map(tour, out) if score else {}
     fs = summary["painting"].get("frame_selection") or {}
+    timings = summary.get("timings_s") or {}
     return {"world": name, "mode": mode, "build_s": round(wall, 2), "frames": fs.get("frames_segmented"),
             "frames_skipped": fs.get("frames_skipped"), "scans_from_memory": fs.get("scans_from_memory"),
-            "duration_s": summary["tour"]["duration_s"],
+            "duration_s": summary["tour"]["duration_s"], "model_s": timings.get("segmentation_busy"),
+            "wait_model_s": timings.get("wait_images"), "loop_s": timings.get("loop"),
             **{k: s.get(k) for k, *_ in SCORES}}
+
+
+def speed_table(rows: list[dict[str, Any]], modes: list[str], model: Path, hz: float | None) -> None:
+    """Build time against the tour's length, per selection, with a model backend (``--onnx``)."""
+    print(f"Builds with the ONNX backend ({model.name}) on {hz:g} Hz camera tours: faster than real time when "
+          f"the tour's length over the build's wall time is above 1 (map scores are not reported: the weights "
+          f"may be random)\n" if hz else f"Builds with the ONNX backend ({model.name})\n")
+    print("| mode | frames segmented (share of all frames) | model busy (s) | build wall time (s) | tour (s) | "
+          "tour / build | waiting for the model |")
+    print("|---|---|---|---|---|---|---|")
+    for mode in modes:
+        rs = [r for r in rows if r["mode"] == mode]
+        frames = sum(r["frames"] or 0 for r in rs)
+        total = sum((r["frames"] or 0) + (r["frames_skipped"] or 0) for r in rs)
+        busy = sum(r["model_s"] or 0.0 for r in rs)
+        wall = sum(r["build_s"] for r in rs)
+        dur = sum(r["duration_s"] for r in rs)
+        loop = sum(r["loop_s"] or 0.0 for r in rs)
+        wait = sum(r["wait_model_s"] or 0.0 for r in rs)
+        print(f"| {mode} | {frames} ({100 * frames / max(total, 1):.0f} %) | {busy:.1f} | {wall:.1f} | {dur:.1f} | "
+              f"**{dur / wall:.2f}** | {100 * wait / loop if loop else 0:.0f} % |")
 
 
 def deltas(row: dict[str, Any], ref: dict[str, Any]) -> dict[str, float]:
@@ -115,8 +140,14 @@ def main() -> int:
                          "trajectory and the scores differ by the labels alone (by default the registration leaves "
                          "out returns painted as people, so labels move the poses by a few millimetres, and thin "
                          "legs flip in and out of the map)")
+    ap.add_argument("--onnx", type=Path, metavar="MODEL",
+                    help="segment with this ONNX model (e.g. YOLO11n-seg) instead of the bag's label images, and "
+                         "report build speed against the tour's length instead of map scores")
     add_set_argument(ap)
     args = ap.parse_args()
+    if args.onnx is not None:
+        args.set = {**args.set, "segmentation": {**args.set.get("segmentation", {}), "backend": "onnx",
+                                                 "model": str(args.onnx.resolve())}}
     if args.same_poses:
         args.set = {**args.set, "registration": {**args.set.get("registration", {}), "exclude_dynamic": False}}
     if "all" not in args.modes:
@@ -145,8 +176,12 @@ def main() -> int:
                     import shutil
 
                     shutil.rmtree(out)
-                row = build_and_score(name, Path(tour), out, mode, args.set)
+                row = build_and_score(name, Path(tour), out, mode, args.set, score=args.onnx is None)
                 rows.append(row)
+                if args.onnx is not None:
+                    print(f"  {name:<12} {mode:<10} frames {row['frames']:>4}  build {row['build_s']:.1f} s for a "
+                          f"{row['duration_s']:.1f} s tour", file=sys.stderr)
+                    continue
                 print(f"  {name:<12} {mode:<10} frames {row['frames']:>4}  standing {fmt(row['standing_left'], 'pct')}"
                       f"  ghost {fmt(row['ghost_rate'], 'pct')}  F1 {fmt(row['f1'], 'f3')}  semi P "
                       f"{fmt(row['semi_precision'], 'f3')} R {fmt(row['semi_recall'], 'f3')}  {row['build_s']:.0f} s",
@@ -160,6 +195,12 @@ def main() -> int:
           + (f"; camera at {args.camera_hz:g} Hz" if args.camera_hz else "; each world's own camera rate")
           + ("; the same poses for every selection (registration.exclude_dynamic: false)" if args.same_poses else "")
           + "\n")
+    if args.onnx is not None:
+        speed_table(rows, args.modes, args.onnx, args.camera_hz)
+        if args.json:
+            args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
+                                             "worlds": worlds, "rows": rows}, indent=2, default=float))
+        return 0
     print("| mode | model calls (share of all) | " + " | ".join(f"{lab}: worst change" for _, lab, *_ in SCORES)
           + " | worlds within tolerance |")
     print("|---|---|" + "---|" * len(SCORES) + "---|")

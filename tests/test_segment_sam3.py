@@ -175,7 +175,8 @@ def test_a_prompt_that_keeps_no_query_skips_the_mask_head(tiny_sam3):
     assert 0 < seg.stats["mask_heads"] < len(PROMPTS)
     assert cached.label.any()
     assert np.array_equal(cached.label, seg.segment_uncached(img).label)
-    assert np.array_equal(cached.confidence, seg.segment_uncached(img).confidence)
+    # (the batched and the one-by-one decoder passes round differently on some CPUs' kernels)
+    assert np.allclose(cached.confidence, seg.segment_uncached(img).confidence, atol=1e-6)
 
 
 def test_input_resolution_scales_to_the_memory_budget(tiny_sam3):

@@ -19,6 +19,7 @@ from ..config import SegmentationConfig
 from ..errors import SemmapError
 from ..records import Image, Segmentation
 from .base import Segmenter
+from .cache import CachedSegmenter
 from .select import FrameSelector, OdometrySource, SkippedFrame
 
 __all__ = ["ImageReader", "ImageSource", "InProcessImages", "OdometrySource", "SkippedFrame"]
@@ -64,7 +65,7 @@ class ImageReader:
         self._stack = contextlib.ExitStack()
         segmenter = create_segmenter(seg_cfg)
         self._stack.callback(segmenter.close)
-        if getattr(segmenter, "last_model_seconds", False) is False:  # no mask cache (which loads when it must)
+        if not isinstance(segmenter, CachedSegmenter):  # (the mask cache loads its model only when it must)
             _ = segmenter.names  # a model that loads on first use loads now: start-up, not its first frame's time
         try:
             opened = self._stack.enter_context(read_bag(bag))
@@ -112,8 +113,8 @@ class ImageReader:
             counts["images"] += 1
             counts["segment_ms"] += int(elapsed * 1000)
             # the model's time for it: as measured, or as it was when the mask cache stored it
-            stored = getattr(segmenter, "last_model_seconds", None)
-            selector.timed(elapsed if stored is None else float(stored), img.stamp_ns)
+            stored = segmenter.last_model_seconds if isinstance(segmenter, CachedSegmenter) else None
+            selector.timed(elapsed if stored is None else stored, img.stamp_ns)
             selector.segmented(seg)
             yield seg
 

@@ -71,9 +71,22 @@ def score_pair(pair: str, work: Path, quiet: bool = False) -> dict:
     result = diff(map_a, map_b, out=out, force=True)
     s = score_diff(tour_a, map_a, tour_b, map_b, result)
     s["pair"] = pair
+    # the maps' own people scores (issue 12's): a person a map kept is what the diff then calls a change
+    from semmap.sim.score import score_map
+
+    s["maps"] = {side: {k: float(v) for k, v in score_map(tour, mapdir).items()
+                        if k in ("standing_left", "ghost_rate")}
+                 for side, tour, mapdir in (("a", tour_a, map_a), ("b", tour_b, map_b))}
     s["alignment"] = result.alignment.as_dict()
     s["diff_folder"] = str(out)
     return s
+
+
+def _people(s: dict) -> str:
+    """Standing people the two maps kept (share of the cells they stood on), '-' where none stood."""
+    def pct(v: float) -> str:
+        return "-" if v != v else f"{100 * v:.1f} %"
+    return " / ".join(pct(s["maps"][side]["standing_left"]) for side in ("a", "b"))
 
 
 REAL_PAIRS = (("2018_may9_editted_before1", "2018_may9_editted_after1"), ("2019_jan17_expt08", "2019_jan17_expt09"))
@@ -191,8 +204,9 @@ def main() -> int:
             print(f"{pair}:", flush=True)
             results.append(score_pair(pair, args.work))
         print("\n| pair | alignment error (cm, °) | F1 added+removed (P / R) | moved objects matched | "
-              "worst displacement error (cm) | false changes | changes found | diff time (s) |")
-        print("|---|---|---|---|---|---|---|---|")
+              "worst displacement error (cm) | false changes | changes found | diff time (s) | "
+              "standing people left in A / B's map |")
+        print("|---|---|---|---|---|---|---|---|---|")
         for s in results:
             moves = [m for m in s["moves"] if m["seen"]]  # moves the two sessions could see
             matched = sum(m["matched"] for m in moves)
@@ -203,7 +217,7 @@ def main() -> int:
             counts = ", ".join(f"{n} {k}" for k, n in s["counts"].items() if n)
             print(f"| {s['pair']} | {s['alignment_error_m'] * 100:.1f}, {s['alignment_error_deg']:.2f} | "
                   f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched_txt} | {worst} | "
-                  f"{len(s['false_changes'])} | {counts} | {s['seconds']:.2f} |")
+                  f"{len(s['false_changes'])} | {counts} | {s['seconds']:.2f} | {_people(s)} |")
         for s in results:
             for f in s["false_changes"]:
                 print(f"  false change in {s['pair']}: {f}")

@@ -328,15 +328,18 @@ def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.int
 
 
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
-               cfg: CleaningConfig) -> NDArray[np.bool_]:
+               cfg: CleaningConfig, semi: NDArray[np.float32], hits: NDArray[np.uint16],
+               static_veto: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Cells of people no camera labelled, found by their legs: two isolated blobs a person's leg wide
     (``person_leg_width``), their centres ``person_leg_spacing`` apart, with nothing else near.
 
     At LiDAR height a standing person is two legs 10-16 cm wide about 20 cm apart; furniture legs
     are 2-8 cm wide and 40 cm or more apart, and each has neighbours (a chair's other legs). A blob
     touching anything else is part of a larger blob, and one carrying camera labels that say it is
-    something else (``vetoed``) is never a leg. Walls (``structure``) and anything longer than
-    ``structure_min_size`` may be near: people stand by walls, beds and counters.
+    something else is never a leg: labels of structure (``static_veto``), or labels of furniture
+    (``vetoed`` cells, their ``semi`` hits at least ``person_leg_veto_share`` of the blob's ``hits``).
+    Walls (``structure``) and anything longer than ``structure_min_size`` may be near: people stand by
+    walls, beds and counters.
     """
     n, lab, stats, cent = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:  # (one blob may be a person: two legs close together)
@@ -345,6 +348,13 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     lo, hi = cfg.person_leg_width
     s_lo, s_hi = cfg.person_leg_spacing
     veto = np.bincount(lab[vetoed], minlength=n) > 0
+    if cfg.person_leg_veto_share > 0:
+        # furniture labels veto a blob when they are a share of its returns; structure labels always do
+        on = lab > 0
+        t_semi = np.bincount(lab[on], semi[on], n)
+        t_hits = np.bincount(lab[on], hits[on].astype(np.float64), n)
+        veto &= t_semi >= cfg.person_leg_veto_share * t_hits
+        veto |= np.bincount(lab[static_veto], minlength=n) > 0
     veto[0] = True
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
@@ -596,7 +606,11 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     if cfg.person_leg_spacing[1] > 0:
         # (a blob touching a wall is part of the wall's blob, far too long to be a person)
         vetoed = (lab >= cfg.min_labelled_hits) & ~(dyn_share >= cfg.dynamic_fraction)
-        legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg)
+        # a blob's furniture labels count when they are a share of its returns: a person the camera never
+        # saw as one, standing behind a chair from the camera's side, takes a few returns painted through
+        # the chair's mask (parallax) among hundreds; structure labels veto as they are
+        legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg,
+                                       s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits))
         if legs.any():
             dyn |= legs
             semi &= ~dyn

@@ -15,11 +15,11 @@ frame did not see the same cells.
   (a token bucket holding at most two frames: a frame the selection wants waits for a token).
   ``max_frames``: at most that many in all, spent at the rate that spreads them over the tour's length
   (from the bag's index), and never more. ``max_seconds``: at most that much model time in all, spent the
-  same way: after each frame the seconds left, at the model's median time over its last five frames, become the rate
-  that spreads them over the rest of the tour. A frame read from the mask cache counts the time it took
-  when it was segmented, so a rebuild selects the frames the first build did and runs no model. (Model
-  time varies from run to run and machine to machine: ``max_frames`` is the budget that selects the same
-  frames everywhere.)
+  same way: after each frame the seconds left, at the model's median time over its last five frames,
+  become the rate that spreads them over the rest of the tour. A frame read from the mask cache counts
+  the time it took when it was segmented, so a rebuild selects the frames the first build did and runs
+  no model. (Model time varies from run to run and machine to machine: ``max_frames`` is the budget that
+  selects the same frames everywhere.)
 
 A selector sees the bag's records in bag order (:meth:`FrameSelector.on_record`: the odometry, and
 whatever else its :attr:`~FrameSelector.topics` name), is asked about each camera frame before the model
@@ -183,24 +183,18 @@ class FrameSelector:
     def timed(self, seconds: float, stamp_ns: int) -> None:
         """The model spent ``seconds`` on the frame stamped ``stamp_ns``, just taken: with ``max_seconds``,
         the seconds left at the model's recent time per frame become the rate over the rest of the tour."""
-        self.model_seconds += max(0.0, seconds)
-        self._recent.append(max(0.0, seconds))
-        if self.max_seconds is None:
-            return
+        seconds = max(0.0, seconds)
+        self.model_seconds += seconds
+        self._recent.append(seconds)
+        if self.max_seconds is None or self._tour_s is None or self._first_ns is None:
+            return  # (the tour's length unknown: the total still holds, spent as the frames come)
         # the model's time per frame from its last few (a first frame's warm-up is soon forgotten)
         per_frame = max(float(np.median(self._recent)), 1e-6)
         frames_left = max(0.0, (self.max_seconds - self.model_seconds) / per_frame)
-        if self._tour_s is None or self._first_ns is None:
-            rate = None  # the tour's length unknown: the total still holds
-        else:
-            rest = max(self._tour_s - (stamp_ns - self._first_ns) * 1e-9, 1e-3)
-            rate = frames_left / rest
-        if self.rate is None and (rate is not None or self._rate_cap is not None):
+        rate = frames_left / max(self._tour_s - (stamp_ns - self._first_ns) * 1e-9, 1e-3)
+        if self.rate is None:
             self._tokens, self._tokens_ns = 0.0, stamp_ns  # this frame spent the first token
-        if rate is None:
-            self.rate = self._rate_cap
-        else:
-            self.rate = rate if self._rate_cap is None else min(self._rate_cap, rate)
+        self.rate = rate if self._rate_cap is None else min(self._rate_cap, rate)
 
     def failed(self) -> None:
         """The frame just taken could not be segmented: the next one is judged as if it had not been taken

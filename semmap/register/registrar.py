@@ -115,7 +115,8 @@ class Registrar:
             self._closer = LoopCloser(LoopConfig(
                 keyframe_distance=lc.keyframe_distance, keyframe_angle=lc.keyframe_angle,
                 min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
-                descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance), cfg)
+                descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance,
+                rematch=lc.rematch), cfg)
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
         rf = cfg.refine
         self._refiner: LineRefiner | None = LineRefiner(neighbours=rf.neighbours) \

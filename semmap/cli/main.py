@@ -18,6 +18,7 @@ from pathlib import Path
 from ..errors import InternalError, Interrupted, SemmapError
 from ..io.atomic import COMMITTED
 from ..version import __version__
+from . import batch as batch_cmd
 from . import build as build_cmd
 from . import calibrate as calibrate_cmd
 from . import diff as diff_cmd
@@ -32,7 +33,7 @@ from . import simulate as simulate_cmd
 
 EXIT_INTERNAL = 70
 
-COMMANDS = (build_cmd, diff_cmd, export_cmd, import_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd,
+COMMANDS = (build_cmd, diff_cmd, batch_cmd, export_cmd, import_cmd, simulate_cmd, info_cmd, calibrate_cmd, segment_cmd,
             evalseg_cmd, evaltraj_cmd, paint_cmd)
 
 

@@ -275,3 +275,51 @@ def test_a_signal_mid_run_leaves_no_process_and_no_half_written_map(tours, tmp_p
     assert not list(tmp_path.glob("**/.*.partial"))
     for folder in out.glob("*/maps/*"):
         assert (folder / "summary.json").is_file()
+
+
+def _ray_build_workers() -> dict[int, set[int]]:
+    """Ray worker processes running a build, and their children (the build's own workers)."""
+    out: dict[int, set[int]] = {}
+    for proc in Path("/proc").glob("[0-9]*"):
+        with contextlib.suppress(OSError):
+            if proc.joinpath("cmdline").read_bytes().startswith(b"ray::run_build"):
+                out[int(proc.name)] = _descendants(int(proc.name))
+    return out
+
+
+@needs_ray
+def test_a_ray_worker_killed_mid_build_is_retried_and_leaves_nothing(tours, single, tmp_path):
+    """The out-of-memory killer takes a Ray worker in the middle of a build (SIGKILL): the build's own
+    worker processes die with it, its half-written map folder is swept away, Ray runs the task again,
+    and the batch ends with every map, equal to a single build's."""
+    (tmp_path / "tours").symlink_to(tours / "tours")
+    manifest = _manifest(tmp_path, THREE_SITES)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "semmap", "batch", str(manifest), "--out", str(out),
+                             "--engine", "ray", "--workers", "1", "-q"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        end = time.monotonic() + 120
+        victim: tuple[int, set[int]] | None = None
+        while victim is None and time.monotonic() < end:
+            assert proc.poll() is None, proc.communicate()
+            if any(out.glob("*/maps/.*.partial")):
+                victim = next(((p, kids) for p, kids in _ray_build_workers().items() if kids), None)
+            time.sleep(0.02)
+        assert victim is not None, "no build with worker processes was seen"
+        os.kill(victim[0], signal.SIGKILL)
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, err
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in victim[1]) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [p for p in victim[1] if _alive(p)], "the killed build's workers outlived it"
+    assert not list(tmp_path.glob("**/.*.partial"))
+    report = json.loads((out / "report.json").read_text())
+    assert [r["build"]["status"] for r in report["tours"]] == ["built"] * 3
+    _same_maps(out / "st-marys" / "maps" / "ward", single / "ward")
+    _same_maps(out / "hq" / "maps" / "floor2", single / "office")
+    _same_maps(out / "depot" / "maps" / "depot", single / "depot")

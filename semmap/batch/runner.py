@@ -108,7 +108,8 @@ class _Ray:
 
     name = "ray"
 
-    def __init__(self, address: str | None, workers: int | None, cpus_per_job: float) -> None:
+    def __init__(self, address: str | None, workers: int | None, cpus_per_job: float, gpus_per_job: float = 0.0
+                 ) -> None:
         import ray
 
         self._ray = ray
@@ -141,8 +142,16 @@ class _Ray:
         #: the last termination signal that arrived (Ray's blocking calls turn the exception our
         #: handler raises into a plain KeyboardInterrupt: this says which signal it was)
         self.signum: int | None = None
+        # how many jobs run at once: the cluster's cores (and GPUs) over what each job asks for
+        res = ray.cluster_resources()
+        slots = float(res.get("CPU", 1.0)) / cpus_per_job
+        if gpus_per_job > 0:
+            slots = min(slots, float(res.get("GPU", 0.0)) / gpus_per_job)
+        self._slots = max(int(slots), 1)
         # a task whose worker died (killed, out of memory) is tried once more; a tour that fails is not
-        self._build = ray.remote(num_cpus=cpus_per_job, max_retries=1, retry_exceptions=False)(run_build)
+        # a build that runs a segmentation model can ask for a GPU: Ray sends it to a node that has one
+        self._build = ray.remote(num_cpus=cpus_per_job, num_gpus=gpus_per_job, max_retries=1,
+                                 retry_exceptions=False)(run_build)
         self._diff = ray.remote(num_cpus=cpus_per_job, max_retries=1, retry_exceptions=False)(run_diff)
         self._pending: set[Any] = set()
 
@@ -164,7 +173,8 @@ class _Ray:
 
     @property
     def running(self) -> int:
-        return len(self._pending)
+        """Jobs running now (the rest of :attr:`pending` wait for a free slot)."""
+        return min(len(self._pending), self._slots)
 
     @property
     def pending(self) -> int:
@@ -233,14 +243,17 @@ def _check_out(out: Path) -> bool:
 
 
 def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = None, workers: int | None = None,
-              engine: Engine = "auto", cpus_per_job: float = 1.0, on_event: EventFn | None = None) -> BatchResult:
+              engine: Engine = "auto", cpus_per_job: float = 1.0, gpus_per_job: float = 0.0,
+              on_event: EventFn | None = None) -> BatchResult:
     """Build every tour of ``manifest`` into ``out`` and diff each against its previous session.
 
     ``engine``: ``ray`` (Ray must be installed), ``local`` (one after another in this process), or
     ``auto`` (Ray when installed). ``address``: a Ray cluster (``auto``, ``ray://host:10001``);
     None starts Ray on this machine. ``workers``: jobs at once on a local Ray (default: one per
-    core, ``cpus_per_job`` cores each). Finished map folders that are up to date are kept (see
-    the module's documentation). ``on_event`` hears of each job as it ends.
+    core, ``cpus_per_job`` cores each); ``gpus_per_job``: GPUs Ray reserves for each build (a
+    build whose config runs a model on the GPU then goes to a node that has one). Finished map
+    folders that are up to date are kept (see the module's documentation). ``on_event`` hears of
+    each job as it ends.
     """
     t0 = time.perf_counter()
     out = Path(out).expanduser().resolve()
@@ -254,7 +267,9 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     if cpus_per_job <= 0:
-        raise ConfigError(f"cpus_per_job must be > 0, got {cpus_per_job}")
+        raise ConfigError(f"--cpus-per-job must be > 0, got {cpus_per_job}")
+    if gpus_per_job < 0 or (gpus_per_job > 0 and not use_ray):
+        raise ConfigError(f"--gpus-per-job {gpus_per_job}: must be >= 0, and needs Ray")
     if not use_ray:
         log.info("Ray is not installed: the %d tours are built one after another in this process", len(jobs))
 
@@ -284,7 +299,7 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
     total = len(to_build) + len(to_diff) + sum(1 for j in to_build if j.previous is not None)
     done = failed = 0
     interrupted = False
-    runner: _Local | _Ray = _Ray(address, workers, cpus_per_job) if use_ray else _Local()
+    runner: _Local | _Ray = _Ray(address, workers, cpus_per_job, gpus_per_job) if use_ray else _Local()
     info = {"engine": runner.name, "address": address, "workers": workers}
     handles: dict[Any, tuple[str, BuildJob]] = {}
 

@@ -30,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
     p.add_argument("--workers", type=int, metavar="N", help="jobs at once on a local Ray (default: one per core)")
     p.add_argument("--cpus-per-job", type=float, default=1.0, metavar="C",
                    help="cores Ray reserves for each build (default 1; a build runs 2-3 processes)")
+    p.add_argument("--gpus-per-job", type=float, default=0.0, metavar="G",
+                   help="GPUs Ray reserves for each build, so that builds running a model go to GPU nodes "
+                        "(default 0)")
     p.add_argument("--engine", choices=("auto", "ray", "local"), default="auto",
                    help="ray, local (one tour after another in this process), or auto: ray when installed")
     p.set_defaults(run=run)
@@ -49,11 +52,12 @@ def run(args: argparse.Namespace) -> int:
         secs = res.get("seconds")
         took = f" in {secs:.1f} s" if isinstance(secs, int | float) else ""
         err = f": {res.get('error')}" if res.get("error") else ""
-        out.print(f"[{done}/{total}] {kind} {row['key']} {status}{took}{err}"
-                  + (f"  ({failed} failed so far)" if failed else ""))
+        waiting = total - done - running
+        out.print(f"[{done}/{total}] {kind} {row['key']} {status}{took}{err}  ({running} running, "
+                  f"{waiting} waiting, {failed} failed)")
 
     result = run_batch(args.manifest, args.out, address=args.address, workers=args.workers, engine=args.engine,
-                       cpus_per_job=args.cpus_per_job, on_event=on_event)
+                       cpus_per_job=args.cpus_per_job, gpus_per_job=args.gpus_per_job, on_event=on_event)
     if not quiet:
         _print_summary(result)
     if result.failed:

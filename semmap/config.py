@@ -738,7 +738,8 @@ class GridConfig(_Model):
                                                                    "an unmapped space, or from a beam lost on glass "
                                                                    "or a dark surface, 'nothing seen' is weaker "
                                                                    "evidence than a return")
-    tile_margin: float = Field(10.0, gt=0, description="m the grid grows by when a scan leaves it")
+    tile_margin: float = Field(10.0, gt=0, description="side of the grid's tiles, m: the grid is allocated a tile "
+                                                        "at a time as the robot reaches it")
     hit_free_margin: float = Field(0.05, ge=0, description="returns clear free space only to this far short "
                                                             "of their end point, m (keeps grazing rays from "
                                                             "eroding surfaces)")

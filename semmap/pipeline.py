@@ -323,6 +323,7 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
     for o in cleaned.objects:
         by_class[o.class_name] = by_class.get(o.class_name, 0) + 1
     spec = cleaned.spec
+    observed = int(np.count_nonzero(layers.observed))
     consistency = None
     if run.result.endpoints is not None:
         from .grid.consistency import consistency_score, place
@@ -398,6 +399,11 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
             dynamic_cells_removed=int(cleaned.dynamic_removed.sum()),
             semi_static_objects=len(cleaned.objects),
             semi_static_objects_by_class=by_class,
+            observed_cells=observed,
+            grid_tiles=run.result.layers.grid_tiles or None,
+            grid_bytes=run.result.layers.grid_bytes or None,
+            grid_bytes_per_observed_cell=(round(run.result.layers.grid_bytes / observed, 1)
+                                          if run.result.layers.grid_bytes and observed else None),
         ),
         timings_s=TimingsSummary(
             read=round(t.read, 3), paint=round(t.paint, 3), hand_over=round(t.hand_over, 3),

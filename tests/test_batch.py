@@ -323,3 +323,42 @@ def test_a_ray_worker_killed_mid_build_is_retried_and_leaves_nothing(tours, sing
     _same_maps(out / "st-marys" / "maps" / "ward", single / "ward")
     _same_maps(out / "hq" / "maps" / "floor2", single / "office")
     _same_maps(out / "depot" / "maps" / "depot", single / "depot")
+
+
+@needs_ray
+def test_a_model_runs_in_a_gpu_task_of_its_own_and_the_build_reads_its_labels(tours, tmp_path, data_dir):
+    """With --gpus-per-segment the tour whose config runs a model is segmented in a Ray task asking for a
+    GPU (here the real selfie model, on a local Ray offering one GPU), and built from its labels in a
+    task asking for none; the map folder's config says so; a rerun keeps both."""
+    pytest.importorskip("ai_edge_litert")
+    import yaml
+
+    model = data_dir / "models" / "selfie_segmentation.tflite"
+    (tmp_path / "tours").symlink_to(tours / "tours")
+    (tmp_path / "selfie.yaml").write_text(f"segmentation:\n  backend: mediapipe-selfie\n  model: {model}\n")
+    manifest = _manifest(tmp_path, """
+sites:
+  - name: st-marys
+    config: selfie.yaml
+    tours: [tours/ward]
+  - name: depot
+    tours: [tours/depot]
+""")
+    out = tmp_path / "out"
+    result = run_batch(manifest, out, engine="ray", gpus_per_segment=1, local_gpus=1)
+    assert result.ok
+    ward, depot = result.rows
+    assert ward["segment"]["status"] == "done" and ward["segment"]["images"] > 0
+    assert ward["build"]["status"] == "built" and depot["build"]["status"] == "built"
+    assert "segment" not in depot  # its labels come from the bag: nothing for a GPU to do
+    labels = out / "st-marys" / "labels" / "ward" / "labels"
+    assert (labels / "classes.json").is_file()
+    assert len(list(labels.glob("*.png"))) == ward["segment"]["images"]
+    cfg = yaml.safe_load((out / "st-marys" / "maps" / "ward" / "config.yaml").read_text())
+    assert cfg["segmentation"]["backend"] == "folder"
+    again = run_batch(manifest, out, engine="ray", gpus_per_segment=1, local_gpus=1)
+    assert [r["build"]["status"] for r in again.rows] == ["up to date", "up to date"]
+    # a GPU the cluster does not have is one clear error, before anything runs
+    with pytest.raises(ConfigError, match="Ray sees 0 GPUs"):
+        run_batch(manifest, tmp_path / "out2", engine="ray", gpus_per_segment=1, local_gpus=0)
+    assert not (tmp_path / "out2").exists()

@@ -206,12 +206,17 @@ def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, 
 
 
 def test_memory_exhausted_in_fusion_is_an_error_not_a_hang(tour, tmp_path):
-    """The fusion worker's address space is capped once it has started: its grid cannot grow."""
+    """The fusion worker's address space is capped once it has started: its grid cannot be handed over."""
     import resource
 
     bag, cfg = tour
+    # one 100 m tile: the grid is allocated at the first scan (its tiles no longer grow as the robot
+    # moves through a room), and the window handed over at the end (about 100 MB) needs memory the cap
+    # below does not leave
+    big = tmp_path / "big_tile.yaml"
+    big.write_text(cfg.read_text() + "grid:\n  tile_margin: 100.0\n")
     out = tmp_path / "map"
-    run = Run(["build", str(bag), "--config", str(cfg), "--out", str(out)], tmp_path)
+    run = Run(["build", str(bag), "--config", str(big), "--out", str(out)], tmp_path)
     run.wait_for(lambda: run.worker("semmap-fusion") is not None and run.worker("semmap-images") is not None)
     time.sleep(0.3)
     pid = run.worker("semmap-fusion")

@@ -203,7 +203,28 @@ def test_memory_follows_the_area_observed():
     assert h <= 30.0  # the corridor's 3 m plus ranges through its open ends and margins
     assert lay.class_counts.shape[0] == 1  # only class 0 ('wall' painted as class_0) was seen
     assert lay.nbytes < 30e6
-    assert 1 <= g.n_reallocations <= 10
+    # 5 m tiles: a strip of them along the corridor (about 14 long, 2 across its 3 m), not the square
+    assert g.n_tiles <= 3 * 16
+    assert g.nbytes <= g.n_tiles * 100 * 100 * (14 + 2)
+
+
+def test_an_l_shaped_floor_pays_for_its_tiles_not_its_bounding_box():
+    """Two 40 m corridors at right angles: the grid holds the tiles along them, a fraction of the 40 m x 40 m
+    square their bounding box is, and the window it hands to cleaning is that square, the rest unobserved."""
+    world = (World().wall((-2, -1.5), (42, -1.5)).wall((1.5, 1.5), (42, 1.5))
+             .wall((-1.5, -1.5), (-1.5, 42)).wall((1.5, 1.5), (1.5, 42)))
+    g = SemanticGrid(GridConfig(max_range=8.0, tile_margin=5.0), ("wall",))
+    poses = [(x, 0.0, 0.0) for x in np.arange(40.0, 0.0, -0.5)] + [(0.0, y, math.pi / 2) for y in np.arange(0, 40, 0.5)]
+    for p in poses:
+        g.integrate(np.array(p), world.scan(p))
+    lay = g.layers()
+    square = lay.spec.width * lay.spec.height
+    assert lay.spec.width * lay.spec.resolution >= 40 and lay.spec.height * lay.spec.resolution >= 40
+    tile = 100  # cells: 5 m at 5 cm
+    assert g.n_tiles * tile * tile < 0.45 * square  # an L a few tiles wide: well under half the square
+    assert g.nbytes < 0.45 * square * 14  # what a window over the square would hold (14 bytes a cell)
+    # the far corner of the square was never reached: unobserved in the window, and no tile there
+    assert not lay.observed[-tile:, -tile:].any()
 
 
 # ---------------------------------------------------------------------------------------
@@ -489,15 +510,16 @@ def test_an_objects_views_are_the_scans_that_saw_it():
 
 
 def test_sightings_keep_their_cells_while_the_grid_grows():
-    """The fusion window grows as the robot drives away; each sighting still names the cell it was made in."""
+    """The grid grows (new tiles) as the robot drives away; each sighting still names the cell it was made in."""
     world = World().room(-4, -4, 4, 4)
     world.leg((1.0, 0.0), 0.05, 2, SEMI, 3)
     g = SemanticGrid(GridConfig(), NAMES)
     g.integrate(np.array([-2.0, 0.0, 0.0]), world.scan((-2.0, 0.0, 0.0)))
     far = World().room(36, -4, 44, 4)
-    g.integrate(np.array([38.0, 0.0, 0.0]), far.scan((38.0, 0.0, 0.0)))  # grows the window by 40 m
+    before = g.n_tiles
+    g.integrate(np.array([38.0, 0.0, 0.0]), far.scan((38.0, 0.0, 0.0)))  # 40 m on: new tiles
     lay = g.layers()
-    assert g.n_reallocations >= 1
+    assert g.n_tiles > before
     s = lay.sightings
     assert s.shape[0] >= 2 and set(s[:, 0]) == {0} and set(s[:, 1]) == {3}
     xs = lay.spec.origin_x + (s[:, 3] + 0.5) * lay.spec.resolution

@@ -20,7 +20,11 @@ from ..errors import SemmapError
 from ..version import __version__
 from .manifest import BuildJob
 
-__all__ = ["build_fingerprint", "diff_fingerprint", "job_from_dict", "run_build", "run_diff"]
+__all__ = ["MODEL_BACKENDS", "build_fingerprint", "diff_fingerprint", "job_from_dict", "run_build", "run_diff",
+           "run_segment", "segmentation_backend"]
+
+#: segmentation backends that run a model (the others read labels from the bag or a folder)
+MODEL_BACKENDS = ("onnx", "ultralytics", "sam3", "mediapipe-selfie")
 
 log = logging.getLogger(__name__)
 
@@ -103,15 +107,63 @@ def map_scores(summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def segmentation_backend(job: BuildJob) -> str:
+    """The segmentation backend a tour's build runs (its config's), or "" when the config cannot be read
+    (the build then fails and says why)."""
+    from ..io.tour import load_build_config
+
+    try:
+        cfg, _ = load_build_config(job.config)
+    except (SemmapError, OSError):
+        return ""
+    return str(cfg.segmentation.backend)
+
+
+def run_segment(job_d: dict[str, Any]) -> dict[str, Any]:
+    """Segment every camera image of a tour with its config's model into ``job_d["labels"]`` (label PNGs
+    and classes.json, as ``semmap segment`` writes them), for its build to read with the folder
+    backend: the model runs where this task runs (a GPU node), the mapping elsewhere."""
+    from ..io.tour import load_build_config
+    from ..segment.run import segment_source
+
+    job = job_from_dict(job_d)
+    labels = Path(job_d["labels"])
+    t0 = time.perf_counter()
+    out: dict[str, Any] = {"key": job.key, "kind": "segment", "fingerprint": build_fingerprint(job)}
+    try:
+        cfg, _ = load_build_config(job.config)
+        res = segment_source(job.tour, labels, cfg.segmentation, overlays=False, force=labels.exists())
+    except Exception as exc:
+        log.debug("%s: segmentation failed", job.key, exc_info=True)
+        return out | {"status": "failed", "error": _error_line(exc), "seconds": round(time.perf_counter() - t0, 2)}
+    return out | {"status": "done", "error": None, "seconds": round(time.perf_counter() - t0, 2),
+                  "images": res.images, "model_seconds": round(res.seconds, 2), "labels": str(labels)}
+
+
+def _config_with_labels(job: BuildJob, labels: Path) -> Any:
+    """The tour's config, its segmentation replaced by the labels a segmentation task wrote."""
+    from ..config import FolderSegmentation
+    from ..io.tour import load_build_config
+
+    cfg, base = load_build_config(job.config)
+    cal = cfg.calibration
+    if cal is not None and not cal.expanduser().is_absolute():  # relative to the config file, as build reads it
+        cal = base / cal.expanduser()
+    seg = FolderSegmentation(folder=labels / "labels")
+    return cfg.model_copy(update={"segmentation": seg, "calibration": cal})
+
+
 def run_build(job_d: dict[str, Any]) -> dict[str, Any]:
-    """Build one tour into its map folder (replacing an older one); the outcome as a dict."""
+    """Build one tour into its map folder (replacing an older one); the outcome as a dict. With
+    ``job_d["labels"]`` the build reads the labels a segmentation task wrote instead of running the model."""
     from ..pipeline import build
 
     job = job_from_dict(job_d)
     t0 = time.perf_counter()
     out: dict[str, Any] = {"key": job.key, "kind": "build", "fingerprint": build_fingerprint(job)}
     try:
-        result = build(job.tour, job.out, config=job.config, calibration=job.calibration,
+        config = job.config if not job_d.get("labels") else _config_with_labels(job, Path(job_d["labels"]))
+        result = build(job.tour, job.out, config=config, calibration=job.calibration,
                        force=job.out.exists())
     except Exception as exc:  # one tour's failure is reported, not raised: the batch goes on
         log.debug("%s failed", job.key, exc_info=True)

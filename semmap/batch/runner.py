@@ -28,7 +28,16 @@ from typing import Any, Literal
 from ..errors import ConfigError, Interrupted, OutputError
 from ..io.atomic import atomic_file
 from ..version import __version__
-from .jobs import build_fingerprint, diff_fingerprint, job_to_dict, run_build, run_diff
+from .jobs import (
+    MODEL_BACKENDS,
+    build_fingerprint,
+    diff_fingerprint,
+    job_to_dict,
+    run_build,
+    run_diff,
+    run_segment,
+    segmentation_backend,
+)
 from .manifest import BuildJob, load_manifest
 
 __all__ = ["BatchResult", "Engine", "run_batch"]
@@ -108,8 +117,8 @@ class _Ray:
 
     name = "ray"
 
-    def __init__(self, address: str | None, workers: int | None, cpus_per_job: float, gpus_per_job: float = 0.0
-                 ) -> None:
+    def __init__(self, address: str | None, workers: int | None, cpus_per_job: float, gpus_per_job: float = 0.0,
+                 gpus_per_segment: float = 0.0, local_gpus: float | None = None) -> None:
         import ray
 
         self._ray = ray
@@ -118,7 +127,7 @@ class _Ray:
         if address is None:
             # a local Ray: the machine's cores (or --workers jobs at once); small messages only, so a
             # small object store (Ray's default takes 30 % of the RAM in /dev/shm)
-            kwargs |= {"num_cpus": int(workers * cpus_per_job) if workers else None,
+            kwargs |= {"num_cpus": int(workers * cpus_per_job) if workers else None, "num_gpus": local_gpus,
                        "object_store_memory": 100 * 1024 * 1024}
         # Ray's driver installs its own SIGTERM handler (it exits 1 with a stack dump): ours, which stops
         # the jobs, cancels the tasks and shuts Ray down, is put back
@@ -153,6 +162,13 @@ class _Ray:
         self._build = ray.remote(num_cpus=cpus_per_job, num_gpus=gpus_per_job, max_retries=1,
                                  retry_exceptions=False)(run_build)
         self._diff = ray.remote(num_cpus=cpus_per_job, max_retries=1, retry_exceptions=False)(run_diff)
+        self._segment = ray.remote(num_cpus=cpus_per_job, num_gpus=gpus_per_segment, max_retries=1,
+                                   retry_exceptions=False)(run_segment)
+        if gpus_per_segment > 0 and float(res.get("GPU", 0.0)) < gpus_per_segment:
+            self.close()
+            raise ConfigError(f"--gpus-per-segment {gpus_per_segment:g}: Ray sees {res.get('GPU', 0.0):g} GPUs "
+                              f"{'in the cluster' if address else 'on this machine'}; the segmentation tasks "
+                              "could never run")
         self._pending: set[Any] = set()
 
     def _noting(self, sig: int, handler: Any) -> Any:
@@ -166,7 +182,7 @@ class _Ray:
         return note
 
     def submit(self, fn: Callable[[dict[str, Any]], dict[str, Any]], arg: dict[str, Any]) -> Any:
-        remote = self._build if fn is run_build else self._diff
+        remote = self._build if fn is run_build else self._segment if fn is run_segment else self._diff
         ref = remote.remote(arg)
         self._pending.add(ref)
         return ref
@@ -244,6 +260,7 @@ def _check_out(out: Path) -> bool:
 
 def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = None, workers: int | None = None,
               engine: Engine = "auto", cpus_per_job: float = 1.0, gpus_per_job: float = 0.0,
+              gpus_per_segment: float = 0.0, local_gpus: float | None = None,
               on_event: EventFn | None = None) -> BatchResult:
     """Build every tour of ``manifest`` into ``out`` and diff each against its previous session.
 
@@ -251,7 +268,11 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
     ``auto`` (Ray when installed). ``address``: a Ray cluster (``auto``, ``ray://host:10001``);
     None starts Ray on this machine. ``workers``: jobs at once on a local Ray (default: one per
     core, ``cpus_per_job`` cores each); ``gpus_per_job``: GPUs Ray reserves for each build (a
-    build whose config runs a model on the GPU then goes to a node that has one). Finished map
+    build whose config runs a model on the GPU then goes to a node that has one); ``gpus_per_segment``:
+    with more than 0, a tour whose config runs a segmentation model is segmented first in a task of its
+    own asking for that many GPUs (into ``<site>/labels/<tour>``), and built from those labels in a
+    task that asks for none, so the model runs on GPU nodes and the mapping on CPU nodes; ``local_gpus``:
+    the GPUs a local Ray offers (default: those it detects). Finished map
     folders that are up to date are kept (see the module's documentation). ``on_event`` hears of
     each job as it ends.
     """
@@ -268,8 +289,9 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     if cpus_per_job <= 0:
         raise ConfigError(f"--cpus-per-job must be > 0, got {cpus_per_job}")
-    if gpus_per_job < 0 or (gpus_per_job > 0 and not use_ray):
-        raise ConfigError(f"--gpus-per-job {gpus_per_job}: must be >= 0, and needs Ray")
+    for name, v in (("--gpus-per-job", gpus_per_job), ("--gpus-per-segment", gpus_per_segment)):
+        if v < 0 or (v > 0 and not use_ray):
+            raise ConfigError(f"{name} {v:g}: must be >= 0, and needs Ray")
     if not use_ray:
         log.info("Ray is not installed: the %d tours are built one after another in this process", len(jobs))
 
@@ -296,20 +318,42 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
             to_build.append(job)
         rows[job.key] = row
 
-    total = len(to_build) + len(to_diff) + sum(1 for j in to_build if j.previous is not None)
+    # tours whose model runs in a segmentation task of its own (on a GPU node), and the labels it leaves
+    labels: dict[str, Path] = {}
+    if gpus_per_segment > 0:
+        labels = {j.key: out / j.site / "labels" / j.name for j in to_build
+                  if segmentation_backend(j) in MODEL_BACKENDS}
+    to_segment = []
+    for job in to_build:
+        if job.key not in labels:
+            continue
+        old_seg = (previous.get(job.key) or {}).get("segment") or {}
+        if (old_seg.get("status") in ("done", "up to date") and old_seg.get("fingerprint") == build_fingerprint(job)
+                and (labels[job.key] / "labels" / "classes.json").is_file()):
+            rows[job.key]["segment"] = old_seg | {"status": "up to date"}  # its labels are there: build from them
+        else:
+            to_segment.append(job)
+    total = (len(to_build) + len(to_diff) + len(to_segment) + sum(1 for j in to_build if j.previous is not None))
     done = failed = 0
     interrupted = False
-    runner: _Local | _Ray = _Ray(address, workers, cpus_per_job, gpus_per_job) if use_ray else _Local()
+    if local_gpus is not None and (address is not None or not use_ray or local_gpus < 0):
+        raise ConfigError(f"--gpus {local_gpus:g}: the GPUs of a local Ray (not with --address), at least 0")
+    runner: _Local | _Ray = (_Ray(address, workers, cpus_per_job, gpus_per_job, gpus_per_segment, local_gpus)
+                             if use_ray else _Local())
     info = {"engine": runner.name, "address": address, "workers": workers}
     handles: dict[Any, tuple[str, BuildJob]] = {}
+    fns = {"build": run_build, "diff": run_diff, "segment": run_segment}
 
     def submit(kind: str, job: BuildJob) -> None:
-        handles[runner.submit(run_build if kind == "build" else run_diff, job_to_dict(job))] = (kind, job)
+        arg = job_to_dict(job)
+        if job.key in labels:
+            arg["labels"] = str(labels[job.key])
+        handles[runner.submit(fns[kind], arg)] = (kind, job)
 
     try:
         out.mkdir(parents=True, exist_ok=True)
         for job in to_build:
-            submit("build", job)
+            submit("segment" if job in to_segment else "build", job)
         for job in to_diff:
             submit("diff", job)
         _write_reports(out, jobs, rows, info, time.perf_counter() - t0, final=False)
@@ -321,9 +365,15 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
             done += 1
             if res["status"] == "failed":
                 failed += 1
-                if kind == "build" and job.previous is not None:
+                if kind == "segment":  # no labels, no map
+                    rows[job.key]["build"] = {"status": "failed", "error": f"segmentation: {res['error']}",
+                                              "seconds": None}
+                    done += 1
+                if kind in ("build", "segment") and job.previous is not None:
                     rows[job.key]["diff"] = {"status": "skipped", "error": "the build failed"}
                     done += 1
+            elif kind == "segment":
+                submit("build", job)
             elif kind == "build" and job.previous is not None:
                 submit("diff", job)
             _write_reports(out, jobs, rows, info, time.perf_counter() - t0, final=False)

@@ -33,6 +33,12 @@ def add_parser(sub: argparse._SubParsersAction, common: argparse.ArgumentParser)
     p.add_argument("--gpus-per-job", type=float, default=0.0, metavar="G",
                    help="GPUs Ray reserves for each build, so that builds running a model go to GPU nodes "
                         "(default 0)")
+    p.add_argument("--gpus-per-segment", type=float, default=0.0, metavar="G",
+                   help="segment each tour whose config runs a model in a Ray task of its own asking for G GPUs, "
+                        "then build it from those labels in a task asking for none (default 0: the model runs in "
+                        "the build)")
+    p.add_argument("--gpus", type=float, metavar="N", dest="local_gpus",
+                   help="GPUs the local Ray offers (default: those it detects)")
     p.add_argument("--engine", choices=("auto", "ray", "local"), default="auto",
                    help="ray, local (one tour after another in this process), or auto: ray when installed")
     p.set_defaults(run=run)
@@ -57,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
                   f"{waiting} waiting, {failed} failed)")
 
     result = run_batch(args.manifest, args.out, address=args.address, workers=args.workers, engine=args.engine,
-                       cpus_per_job=args.cpus_per_job, gpus_per_job=args.gpus_per_job, on_event=on_event)
+                       cpus_per_job=args.cpus_per_job, gpus_per_job=args.gpus_per_job,
+                       gpus_per_segment=args.gpus_per_segment, local_gpus=args.local_gpus, on_event=on_event)
     if not quiet:
         _print_summary(result)
     if result.failed:

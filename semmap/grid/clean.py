@@ -220,8 +220,16 @@ class _Runs:
     semi: NDArray[np.bool_]  # on a segment whose labels say semi-static (a bed's side), and on no static one
     dynamic: NDArray[np.bool_]  # on a short segment whose labels say dynamic, and on no other
     unlabelled: NDArray[np.bool_]  # on segments without enough labels only
-    #: per direction: (segment labels, unlabelled per segment, extent per segment in m)
-    segments: tuple[tuple[NDArray[np.int32], NDArray[np.bool_], NDArray[np.float64]], ...]
+    #: per direction: (the run's cells as flat indices, each one's segment (1..n), unlabelled per segment
+    #: (index 0 unused), extent per segment in m): the runs are a few per cent of the grid, so not whole
+    #: rasters (on a 150 m floor at 5 cm eight int32 rasters were 280 MB)
+    segments: tuple[tuple[NDArray[np.intp], NDArray[np.int32], NDArray[np.bool_], NDArray[np.float64]], ...]
+
+
+def _mark(out: NDArray[np.bool_], per_segment: NDArray[np.bool_], cells: NDArray[np.intp],
+          seg: NDArray[np.int32]) -> None:
+    """Set ``out`` (H, W) on the run cells (``_Runs.segments``) whose segment has ``per_segment`` true."""
+    out.reshape(-1)[cells[per_segment[seg]]] = True
 
 
 def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArray[np.float32],
@@ -265,7 +273,9 @@ def _runs(occ: NDArray[np.bool_], cfg: CleaningConfig, res: float, s_dyn: NDArra
         r_semi |= run & is_semi[seg]
         r_static |= run & (labelled & ~(is_dyn | is_semi))[seg]
         r_lab |= run & labelled[seg]
-        segments.append((seg, ~labelled, extent.astype(np.float64)))
+        at = np.flatnonzero(run)
+        segments.append((at, seg.reshape(-1)[at], ~labelled, extent.astype(np.float64)))
+        del seg, seg32, run
     # walls at any angle: the kernels above step by 22.5°, and a thin wall at 30° zig-zags off them.
     # Long straight lines (Hough) judged one by one protect such walls from labels that bled onto
     # them (a bed's mask over the wall the LiDAR sees beneath it)
@@ -312,18 +322,22 @@ def _class_sizes(layers: GridLayers, names: Sequence[str]) -> NDArray[np.float64
     return np.array(sizes + [1.0], np.float64)
 
 
-def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.intp]:
+def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.int16]:
     """Per cell, the class layer with the most hits among classes not known to be static or
-    dynamic (-1 where none): the class a movable cell is named by."""
+    dynamic (-1 where none; the first such layer on a tie): the class a movable cell is named by.
+    Layer by layer, so a large floor holds two rasters, not a copy of every class layer."""
+    best = np.full(layers.spec.shape, -1, np.int16)
     if not layers.class_ids:
-        return np.full(layers.spec.shape, -1, np.intp)
+        return best
     mob = _class_mobility([names[c] for c in layers.class_ids])
-    keep = np.array([mb in (None, Mobility.SEMI_STATIC) for mb in mob], bool)
-    if not keep.any():
-        return np.full(layers.spec.shape, -1, np.intp)
-    counts = np.where(keep[:, None, None], layers.class_counts, 0)
-    best = np.argmax(counts, axis=0).astype(np.intp)
-    best[counts.max(axis=0) == 0] = -1
+    most = np.zeros(layers.spec.shape, np.uint16)
+    for k, mb in enumerate(mob):
+        if mb not in (None, Mobility.SEMI_STATIC):
+            continue
+        counts = layers.class_counts[k]
+        more = counts > most
+        best[more] = k
+        np.maximum(most, counts, out=most)
     return best
 
 
@@ -538,17 +552,30 @@ def evidence_occupancy(layers: GridLayers, cfg: CleaningConfig | None = None
 
 
 def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> CleanedMap:
-    spec = layers.spec
-    res = spec.resolution
+    # the decisions' rasters (a dozen per cell) are gone before the objects are grouped
+    occupied, free, unknown, semi_static, dropped = _decide(layers, cfg, names)
+    objects, _ = group_objects(semi_static, layers, names, cfg.object_link_distance / layers.spec.resolution)
+    log.info("cleaned map: %d occupied cells, %d dropped as dynamic, %d semi-static in %d objects",
+             int(occupied.sum()), int(dropped.sum()), int(semi_static.sum()), len(objects))
+    return CleanedMap(layers.spec, occupied, free, unknown, semi_static, dropped, tuple(objects))
+
+
+def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
+            ) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Cleaning's decisions, cell by cell: (occupied, free, unknown, semi-static, dropped as dynamic)."""
+    res = layers.spec.resolution
     occ, free = evidence_occupancy(layers, cfg)
 
-    m = layers.mobility.astype(np.float32)
-    s_static, s_semi, s_dyn = m[Mobility.STATIC], m[Mobility.SEMI_STATIC], m[Mobility.DYNAMIC]
+    # (counts, not their float copies, where only compared: a 150 m floor at 5 cm has 9 million cells)
+    s_static = layers.mobility[Mobility.STATIC]
+    s_semi, s_dyn = (layers.mobility[k].astype(np.float32) for k in (Mobility.SEMI_STATIC, Mobility.DYNAMIC))
     lab = s_static + s_semi + s_dyn
     enough = lab >= cfg.min_labelled_hits
     with np.errstate(invalid="ignore", divide="ignore"):
         dyn_share = np.where(lab > 0, s_dyn / lab, 0.0)
-        semi_share = np.where(lab > 0, s_semi / lab, 0.0)
+        dyn_major, dyn_low = dyn_share >= cfg.dynamic_fraction, dyn_share < 0.1
+        del dyn_share
+        semi_major = np.where(lab > 0, s_semi / lab, 0.0) >= cfg.semi_static_fraction
 
     # walls and furniture faces: straight runs, each direction's segments judged as a whole
     # per cell, its most-hit movable class (-1: none) and each class's typical size (last entry: none)
@@ -557,11 +584,12 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     if cfg.face_size_factor > 0 and layers.class_ids:
         longest = np.where(best >= 0, cfg.face_size_factor * sizes[best], 0.0).astype(np.float32)
     runs = _runs(occ, cfg, res, s_dyn, s_semi, lab, longest)
+    del longest  # (a raster a cell: on a large floor each one counts)
 
     # everything else decides by its own evidence when it has enough labels
     rest = occ & ~runs.on
-    own_dyn = rest & enough & (dyn_share >= cfg.dynamic_fraction)
-    own_semi = rest & enough & ~own_dyn & (semi_share >= cfg.semi_static_fraction)
+    own_dyn = rest & enough & dyn_major
+    own_semi = rest & enough & ~own_dyn & semi_major
     own_static = rest & enough & ~own_dyn & ~own_semi
     undecided = rest & ~enough
     dyn = runs.dynamic | own_dyn
@@ -574,9 +602,9 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     if dyn.any() and cfg.person_radius > 0:
         # a furniture face's run may reach into the legs of someone standing against it: cells
         # whose own labels say dynamic are not protected by it (a wall's run protects everything)
-        labelled_dyn = (s_dyn > 0) & (dyn_share >= cfg.dynamic_fraction)
+        labelled_dyn = (s_dyn > 0) & dyn_major
         clearly_other = (runs.static | (runs.semi & ~labelled_dyn) | own_semi
-                         | (own_static & (s_static >= 2 * cfg.min_labelled_hits) & (dyn_share < 0.1)))
+                         | (own_static & (s_static >= 2 * cfg.min_labelled_hits) & dyn_low))
         free_to_go = occ & ~clearly_other
         person = free_to_go & (_distance_to(dyn) <= cfg.person_radius / res)
         n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(free_to_go.astype(np.uint8), connectivity=8,
@@ -598,6 +626,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
             t_dyn >= cfg.dynamic_fraction * t_lab)
         whole[0] = False
         person |= whole[blob]
+        del blob, mixed, free_to_go
         dyn |= person
         semi &= ~dyn
         undecided &= ~dyn
@@ -605,7 +634,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     # people no camera labelled (standing all tour beside or behind the robot): their legs
     if cfg.person_leg_spacing[1] > 0:
         # (a blob touching a wall is part of the wall's blob, far too long to be a person)
-        vetoed = (lab >= cfg.min_labelled_hits) & ~(dyn_share >= cfg.dynamic_fraction)
+        vetoed = (lab >= cfg.min_labelled_hits) & ~dyn_major
         # a blob's furniture labels count when they are a share of its returns: a person the camera never
         # saw as one, standing behind a chair from the camera's side, takes a few returns painted through
         # the chair's mask (parallax) among hundreds; structure labels veto as they are
@@ -631,11 +660,12 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     if semi.any() and cfg.face_max_length > 0:
         touch = cv2.dilate(semi.astype(np.uint8), _KERNEL3).astype(bool)
         faces = np.zeros(occ.shape, bool)
-        for seg, unlabelled, extent in runs.segments:
-            meets = np.bincount(seg[touch & (seg > 0)], minlength=unlabelled.size) > 0
+        flat_touch = touch.reshape(-1)
+        for cells, seg, unlabelled, extent in runs.segments:
+            meets = np.bincount(seg[flat_touch[cells]], minlength=unlabelled.size) > 0
             grow = unlabelled & meets & (extent <= cfg.face_max_length)
             grow[0] = False
-            faces |= grow[seg]
+            _mark(faces, grow, cells, seg)
         semi |= faces & runs.unlabelled & ~dyn
 
     # furniture the camera saw in one or two frames: its cells hold a label or so each, too few to
@@ -648,6 +678,7 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
         if n_grp:
             _, grp_semi = _verdicts(grp, pool, n_grp, np.zeros_like(s_dyn), s_semi, lab, cfg)
             semi |= pool & grp_semi[grp] & (s_semi > 0)
+        del grp, pool, by_wall
 
     # unlabelled cells off the runs (legs the camera did not see, the far legs of a table) take a
     # semi-static verdict from the nearest semi-static cell when it is nearer than any wall or
@@ -655,20 +686,24 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     # 0.9 x its class's typical size (config/classes.yaml, sizes:)
     if semi.any() and undecided.any():
         d_semi, near_cls = nearest_value(semi, best)
-        reach = np.maximum(cfg.label_spread_distance, 0.9 * sizes[near_cls]) / res  # -1: the last entry
         # cells touching a wall belong to it unless a semi-static cell is nearer; a blob standing
         # apart (a bed's leg 5 cm from the wall its headboard touches) competes only with cells
         # labelled static off the walls
         # (a straight run longer than any furniture is wall, labelled or not)
         long_runs = np.zeros(occ.shape, bool)
-        for seg, unlabelled, extent in runs.segments:
+        for cells, seg, unlabelled, extent in runs.segments:
             far = unlabelled & (extent > max(cfg.face_max_length, cfg.structure_min_size))
             far[0] = False
-            long_runs |= far[seg]
+            _mark(long_runs, far, cells, seg)
         wall = runs.static | own_static | long_runs
         by_wall = cv2.dilate(wall.astype(np.uint8), _KERNEL3).astype(bool)
-        d_static = np.where(by_wall, _distance_to(wall), _distance_to(own_static))
-        semi |= undecided & (d_semi <= reach) & (d_semi < d_static)
+        d_static = _distance_to(own_static)
+        d_static[by_wall] = _distance_to(wall)[by_wall]
+        cand = np.flatnonzero(undecided & (d_semi < d_static))
+        del d_static
+        # how far a class's verdict reaches, at the candidate cells only (-1 names the last entry)
+        reach = np.maximum(cfg.label_spread_distance, 0.9 * sizes[near_cls.reshape(-1)[cand]]) / res
+        semi.reshape(-1)[cand[d_semi.reshape(-1)[cand] <= reach]] = True
     if cfg.leg_max_size > 0:
         # the leg prior (off by default): a small isolated blob no camera labelled is a furniture leg
         n_blob, blob, stats, _ = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8,
@@ -684,13 +719,10 @@ def _clean(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]) -> C
     semi_static = occupied & semi
     free = (free | dropped) & ~occupied
     unknown = ~(occupied | free)
-    objects, _ = group_objects(semi_static, layers, names, cfg.object_link_distance / res)
-    log.info("cleaned map: %d occupied cells, %d dropped as dynamic, %d semi-static in %d objects",
-             int(occupied.sum()), int(dropped.sum()), int(semi_static.sum()), len(objects))
-    return CleanedMap(spec, occupied, free, unknown, semi_static, dropped, tuple(objects))
+    return occupied, free, unknown, semi_static, dropped
 
 
-def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str]) -> NDArray[np.intp]:
+def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequence[str]) -> NDArray[np.int16]:
     """Per semi-static cell, the class layer (index into ``layers.class_ids``) it is named by: its own
     most-hit movable class, or else the nearest named cell's of the same piece (8-connected), or, in a
     piece with no named cell, the nearest named cell's; -1 elsewhere, and everywhere when no cell is
@@ -704,9 +736,9 @@ def semi_cell_classes(semi: NDArray[np.bool_], layers: GridLayers, names: Sequen
     best = _best_semi_class(layers, names)
     named = semi & (best >= 0)
     if not named.any():
-        return np.full(semi.shape, -1, np.intp)
+        return np.full(semi.shape, -1, np.int16)
     _, near = nearest_value(named, best)
-    out = np.where(semi, near, -1).astype(np.intp)
+    out = np.where(semi, near, np.int16(-1))
     pieces, _ = ndimage.label(semi, structure=np.ones((3, 3), bool))
     nr, nc = np.nonzero(named)
     ur, uc = np.nonzero(semi & ~named)

@@ -1,6 +1,7 @@
 """Fusing painted scans into a log-odds occupancy grid with class evidence per cell.
 
-:class:`SemanticGrid` keeps, per cell of a window that grows with the area observed:
+:class:`SemanticGrid` keeps, per cell of the square tiles a scan has reached (``grid.tile_margin``
+m on a side, allocated as the robot gets there, so memory follows the area observed):
 
 * ``log_odds`` (float32): occupancy evidence, clamped to ``[l_min, l_max]``. Inside, it is kept in
   steps of 0.001 as uint16 counted up from ``l_min``: half the memory of float32, and a
@@ -9,8 +10,8 @@
 * ``mobility`` (uint16, 4 layers): how many scans ended a return in the cell painted with
   each :class:`~semmap.records.Mobility` value (0 unknown, 1 static, 2 semi-static,
   3 dynamic): Dirichlet-style counts, saturating at 65535.
-* ``class_counts`` (uint16, one layer per class *seen*): the same per object class, so memory
-  does not grow with the length of the class list (80 COCO classes).
+* ``class_counts`` (uint16, one layer per class *seen in the tile*): the same per object class, so
+  memory does not grow with the length of the class list (80 COCO classes).
 
 Every count is at most one per scan and cell, however many beams of the scan land there;
 close walls would otherwise outvote far ones.
@@ -26,8 +27,8 @@ scan's polygon (the LiDAR origin followed by the beam end points in scan order) 
 * the cells a return of the same scan ended in are removed from the mask, so a ray never
   clears its own end cell.
 
-The log-odds window of the bounding box is then updated with one OpenCV pass; hits, mobility
-and class counts with one sort of the scan's (cell, code) keys. A 541-beam indoor scan costs
+The log-odds of each tile the bounding box overlaps is then updated with one OpenCV pass; hits,
+mobility and class counts with one sort of the scan's (cell, code) keys. A 541-beam indoor scan costs
 ~0.3-0.5 ms on one core.
 """
 
@@ -106,6 +107,10 @@ class GridLayers:
     class_names: tuple[str, ...]
     n_scans: int = 0
     sightings: NDArray[np.int32] = field(default_factory=lambda: _frozen(np.zeros((0, 4), np.int32)))
+    #: the fusing grid's memory when the snapshot was taken (its tiles' layers), bytes, and its tiles (0: not
+    #: from a :class:`SemanticGrid`)
+    grid_bytes: int = 0
+    grid_tiles: int = 0
 
     def __post_init__(self) -> None:
         shape = self.spec.shape
@@ -146,13 +151,33 @@ class GridLayers:
                    + self.class_counts.nbytes + self.sightings.nbytes)
 
 
+class _Tile:
+    """One square tile of the grid: its cells' layers (class layers only for the classes hit in it)."""
+
+    __slots__ = ("cls", "free", "hits", "lo", "mob")
+
+    def __init__(self, side: int, q_zero: int) -> None:
+        self.lo = np.full((side, side), q_zero, np.uint16)
+        self.hits = np.zeros((side, side), np.uint16)
+        self.free = np.zeros((side, side), np.uint16)
+        self.mob = np.zeros((N_MOBILITY, side, side), np.uint16)
+        self.cls: dict[int, NDArray[np.uint16]] = {}
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.lo.nbytes + self.hits.nbytes + self.free.nbytes + self.mob.nbytes
+                   + sum(a.nbytes for a in self.cls.values()))
+
+
 class SemanticGrid:
     """A log-odds occupancy grid with mobility and class evidence, grown as scans arrive.
 
-    ``class_names`` is the list that ``PaintedScan.class_id`` indexes. The grid starts
-    empty; the first scan allocates a window around itself plus ``cfg.tile_margin``, and any
-    scan leaving the window enlarges it by ``tile_margin`` on the sides it left, so memory
-    follows the area observed (a long corridor costs a long strip, not a square).
+    ``class_names`` is the list that ``PaintedScan.class_id`` indexes. The grid is stored in
+    square tiles ``cfg.tile_margin`` m on a side, on a lattice fixed by the first scan; a tile is
+    allocated when a scan first reaches it, and holds a class layer only for the classes hit in
+    it. So memory follows the area observed: an L-shaped or sparse building does not pay for its
+    bounding box, and growing never copies what is already there. :meth:`layers` assembles the
+    tiles into one window (their bounding box) for cleaning and the map folder.
     """
 
     def __init__(self, cfg: GridConfig | None = None, class_names: Sequence[str] = ()) -> None:
@@ -162,9 +187,8 @@ class SemanticGrid:
         self.class_names: tuple[str, ...] = tuple(class_names)
         self.res = float(self.cfg.resolution)
         self._budget = MEMORY_SHARE * _machine_memory()[0]  # bytes the layers may take (growth refuses more)
-        # window: origin (multiple of the resolution) and arrays; None until the first scan
-        self._ox = 0.0
-        self._oy = 0.0
+        #: cells on a tile's side
+        self.tile_cells = max(16, round(float(self.cfg.tile_margin) / self.res))
         # log-odds as uint16 steps above l_min: l = l_min + q * LOG_ODDS_STEP
         # the clamps are rounded towards 0, so the values kept stay inside [l_min, l_max]
         self._q_zero = math.floor(-self.cfg.l_min / LOG_ODDS_STEP + 1e-6)  # log-odds 0: nothing known
@@ -174,17 +198,17 @@ class SemanticGrid:
         # a step larger than the whole range saturates all the same (and must fit the uint16 rasters)
         self._q_free = min(max(1, round(self.cfg.l_free / LOG_ODDS_STEP)), max(self._q_max, 1))
         self._q_occ = min(max(1, round(self.cfg.l_occ / LOG_ODDS_STEP)), max(self._q_max, 1))
-        self._lo: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
-        self._hits: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
-        self._free: NDArray[np.uint16] = np.zeros((0, 0), np.uint16)
-        self._mob: NDArray[np.uint16] = np.zeros((N_MOBILITY, 0, 0), np.uint16)
-        self._cls: NDArray[np.uint16] = np.zeros((0, 0, 0), np.uint16)
+        self._tiles: dict[tuple[int, int], _Tile] = {}
+        # the lattice's origin (m, a multiple of the resolution): set by the first scan, tile_margin
+        # below and left of its box, so that its cells are those a window around it would have
+        self._gx = 0.0
+        self._gy = 0.0
+        self._tile_bytes = 0
         self._cls_ids: list[int] = []
         self._layer_of = np.full(len(self.class_names), -1, np.intp)
         self.n_scans = 0
-        self.n_reallocations = 0
         # (scan, instance, row, column) of each cell a return painted on an object ended in; row and
-        # column counted from the map origin in cells, so the window may grow meanwhile
+        # column counted in cells of the tiles' lattice
         self._sightings: list[NDArray[np.int32]] = []
         self._sightings_n = 0
         # per-scan scratch rasters, kept between scans (fresh pages for each scan cost page faults)
@@ -192,76 +216,67 @@ class SemanticGrid:
 
     # -- geometry -------------------------------------------------------------------------
     @property
+    def n_tiles(self) -> int:
+        """Tiles allocated so far."""
+        return len(self._tiles)
+
+    def _tile_span(self) -> tuple[int, int, int, int]:
+        rows = [k[0] for k in self._tiles]
+        cols = [k[1] for k in self._tiles]
+        return min(rows), max(rows) + 1, min(cols), max(cols) + 1
+
+    @property
     def spec(self) -> GridSpec | None:
-        """The current window, or None before the first scan."""
-        h, w = self._lo.shape
-        if h == 0:
+        """The window of :meth:`layers`: the tiles' bounding box; None before the first scan."""
+        if not self._tiles:
             return None
-        return GridSpec(self.res, self._ox, self._oy, w, h)
+        t = self.tile_cells
+        tr0, tr1, tc0, tc1 = self._tile_span()
+        return GridSpec(self.res, self._gx + tc0 * t * self.res, self._gy + tr0 * t * self.res, (tc1 - tc0) * t,
+                        (tr1 - tr0) * t)
 
     @property
     def nbytes(self) -> int:
         """Memory held by the grid's layers."""
-        return int(self._lo.nbytes + self._hits.nbytes + self._free.nbytes + self._mob.nbytes + self._cls.nbytes
-                   + 16 * self._sightings_n)
+        return self._tile_bytes + 16 * self._sightings_n
 
-    def _ensure(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        """Grow the window so it covers the box [x0, x1] x [y0, y1] (metres, map frame)."""
+    def _tile(self, tr: int, tc: int, where: tuple[float, float]) -> _Tile:
+        """Tile (tr, tc), allocated on first use. Refused when the tiles, or the window :meth:`layers`
+        assembles over their bounding box, would not fit the memory budget: a pose that jumped far
+        away asks for that, not a building."""
+        tile = self._tiles.get((tr, tc))
+        if tile is not None:
+            return tile
+        t = self.tile_cells
         res = self.res
-        h, w = self._lo.shape
-        if h:
-            cx0, cy0 = self._ox, self._oy
-            cx1, cy1 = cx0 + w * res, cy0 + h * res
-            if x0 >= cx0 and y0 >= cy0 and x1 < cx1 and y1 < cy1:
-                return
-        m = float(self.cfg.tile_margin)
-        if not h:
-            nx0, ny0, nx1, ny1 = x0 - m, y0 - m, x1 + m, y1 + m
+        if self._tiles:
+            tr0, tr1, tc0, tc1 = self._tile_span()
         else:
-            nx0 = x0 - m if x0 < cx0 else cx0
-            ny0 = y0 - m if y0 < cy0 else cy0
-            nx1 = x1 + m if x1 >= cx1 else cx1
-            ny1 = y1 + m if y1 >= cy1 else cy1
-        ox = np.floor(nx0 / res) * res
-        oy = np.floor(ny0 / res) * res
-        nw = int(np.ceil((nx1 - ox) / res)) + 1
-        nh = int(np.ceil((ny1 - oy) / res)) + 1
-        per_cell = _CELL_BYTES + 2 * self._cls.shape[0]
-        need = (nh * nw + h * w) * per_cell  # the old window is held while it is copied into the new
+            tr0, tr1, tc0, tc1 = tr, tr + 1, tc, tc + 1
+        nr0, nr1, nc0, nc1 = min(tr0, tr), max(tr1, tr + 1), min(tc0, tc), max(tc1, tc + 1)
+        window = float(nr1 - nr0) * float(nc1 - nc0) * t * t * (_CELL_BYTES + 2 + 2 * len(self._cls_ids))
+        need = max(self._tile_bytes + t * t * _CELL_BYTES, window)
         if need > self._budget:
-            away = math.hypot(max(cx0 - x0, x1 - cx1, 0.0), max(cy0 - y0, y1 - cy1, 0.0)) if h else 0.0
-            seen = f", {away:.0f} m from the area mapped so far" if h else ""
-            raise SemmapError(f"a scan at ({(x0 + x1) / 2:.0f}, {(y0 + y1) / 2:.0f}) m{seen} would grow the grid to "
-                              f"{nw * res:.0f} m x {nh * res:.0f} m ({_size(need)}, more than the "
-                              f"{_size(self._budget)} it may use): the robot's pose jumped (check the odometry and "
-                              f"registration), or the building is larger than a grid.resolution of {res:g} m allows")
-        lo = np.full((nh, nw), self._q_zero, np.uint16)
-        hits = np.zeros((nh, nw), np.uint16)
-        free = np.zeros((nh, nw), np.uint16)
-        mob = np.zeros((N_MOBILITY, nh, nw), np.uint16)
-        cls = np.zeros((self._cls.shape[0], nh, nw), np.uint16)
-        if h:
-            dc = round((self._ox - ox) / res)
-            dr = round((self._oy - oy) / res)
-            lo[dr:dr + h, dc:dc + w] = self._lo
-            hits[dr:dr + h, dc:dc + w] = self._hits
-            free[dr:dr + h, dc:dc + w] = self._free
-            mob[:, dr:dr + h, dc:dc + w] = self._mob
-            cls[:, dr:dr + h, dc:dc + w] = self._cls
-            self.n_reallocations += 1
-        self._ox, self._oy = float(ox), float(oy)
-        self._lo, self._hits, self._free, self._mob, self._cls = lo, hits, free, mob, cls
-        log.debug("grid window %d x %d cells at (%.2f, %.2f)", nw, nh, self._ox, self._oy)
+            x0, y0 = self._gx + tc0 * t * res, self._gy + tr0 * t * res
+            x1, y1 = self._gx + tc1 * t * res, self._gy + tr1 * t * res
+            away = math.hypot(max(x0 - where[0], where[0] - x1, 0.0), max(y0 - where[1], where[1] - y1, 0.0))
+            seen = f", {away:.0f} m from the area mapped so far" if self._tiles else ""
+            raise SemmapError(f"a scan at ({where[0]:.0f}, {where[1]:.0f}) m{seen} would grow the grid to "
+                              f"{(nc1 - nc0) * t * res:.0f} m x {(nr1 - nr0) * t * res:.0f} m ({_size(need)}, more "
+                              f"than the {_size(self._budget)} it may use): the robot's pose jumped (check the "
+                              f"odometry and registration), or the building is larger than a grid.resolution of "
+                              f"{res:g} m allows")
+        tile = self._tiles[(tr, tc)] = _Tile(t, self._q_zero)
+        self._tile_bytes += tile.nbytes
+        log.debug("grid tile (%d, %d): %d tiles", tr, tc, len(self._tiles))
+        return tile
 
     def _class_layers(self, ids: NDArray[np.intp]) -> NDArray[np.intp]:
-        """Layer index of each class id, adding layers for classes seen for the first time."""
+        """Layer index of each class id, registering classes seen for the first time."""
         layer = self._layer_of[ids]
         missing = layer < 0
         if missing.any():
-            new = np.unique(ids[missing])
-            h, w = self._lo.shape
-            self._cls = np.concatenate([self._cls, np.zeros((new.size, h, w), np.uint16)], axis=0)
-            for c in new:
+            for c in np.unique(ids[missing]):
                 self._layer_of[c] = len(self._cls_ids)
                 self._cls_ids.append(int(c))
             log.debug("class layers: %s", [self.class_names[c] for c in self._cls_ids])
@@ -337,31 +352,34 @@ class SemanticGrid:
         if hx.size:
             x0, x1 = min(x0, hx.min()), max(x1, hx.max())
             y0, y1 = min(y0, hy.min()), max(y1, hy.max())
-        self._ensure(x0, y0, x1, y1)
-        H, W = self._lo.shape
-        gx, gy = self._ox, self._oy
-        c0, r0 = max(int((x0 - gx) / res), 0), max(int((y0 - gy) / res), 0)
-        c1, r1 = min(int((x1 - gx) / res) + 1, W), min(int((y1 - gy) / res) + 1, H)
+        if not self._tiles:
+            m = float(cfg.tile_margin)
+            self._gx, self._gy = float(np.floor((x0 - m) / res) * res), float(np.floor((y0 - m) / res) * res)
+        gx, gy = self._gx, self._gy
+        # the scan's box in cells of the lattice
+        c0, r0 = math.floor((x0 - gx) / res), math.floor((y0 - gy) / res)
+        c1, r1 = math.floor((x1 - gx) / res) + 1, math.floor((y1 - gy) / res) + 1
+        bw = c1 - c0
 
-        # hit cells (clipped: a float can round onto the window's far edge)
-        hc = np.minimum(np.maximum(((hx - gx) / res).astype(np.intp), c0), c1 - 1)
-        hr = np.minimum(np.maximum(((hy - gy) / res).astype(np.intp), r0), r1 - 1)
+        # hit cells (clipped: a float can round onto the box's far edge)
+        hc = np.minimum(np.maximum(np.floor((hx - gx) / res).astype(np.intp), c0), c1 - 1)
+        hr = np.minimum(np.maximum(np.floor((hy - gy) / res).astype(np.intp), r0), r1 - 1)
         assert scan.instance is not None  # PaintedScan fills it in
         inst = scan.instance[hit]
         on = inst >= 0
         if on.any():  # which cells the camera saw as one object in this scan (the object list's evidence)
-            key = np.unique((inst[on].astype(np.int64) << 32) | (hr[on] * W + hc[on]))
+            key = np.unique((inst[on].astype(np.int64) << 32) | ((hr[on] - r0) * bw + (hc[on] - c0)))
             cell = key & 0xFFFFFFFF
             row = np.empty((key.size, 4), np.int32)
             row[:, 0] = self.n_scans
             row[:, 1] = key >> 32
-            row[:, 2] = cell // W + round(gy / res)
-            row[:, 3] = cell % W + round(gx / res)
+            row[:, 2] = cell // bw + r0
+            row[:, 3] = cell % bw + c0
             self._sightings.append(row)
             self._sightings_n += key.size
 
         # free space: the scan polygon, minus the cells returns of this scan ended in
-        scratch = self._raster(0, r1 - r0, c1 - c0)
+        scratch = self._raster(0, r1 - r0, bw)
         scratch.fill(0)
         f = (1 << _SHIFT) / res
         verts = np.empty((fx.size + 1, 2), np.int32)
@@ -373,79 +391,134 @@ class SemanticGrid:
         if cfg.free_erode:
             # keep free space a cell away from the polygon's edge: rays grazing a surface pass
             # through the cells it lies in without hitting them
-            scratch = cv2.erode(scratch, _KERNEL3, dst=self._raster(1, r1 - r0, c1 - c0),
+            scratch = cv2.erode(scratch, _KERNEL3, dst=self._raster(1, r1 - r0, bw),
                                 borderType=cv2.BORDER_CONSTANT, borderValue=0)
         scratch[hr - r0, hc - c0] = 0
-        lo = self._lo[r0:r1, c0:c1]
         # l_free on the free cells, 0 elsewhere: a plain saturating subtraction (OpenCV's masked one is
         # not vectorised and costs several times more)
-        step = np.multiply(scratch, self._q_free, out=self._raster(2, r1 - r0, c1 - c0), dtype=np.uint16)
-        cv2.subtract(lo, step, dst=lo)  # saturates at 0, which is l_min
-        fr = self._free[r0:r1, c0:c1]
-        if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
-            np.add(fr, scratch, out=fr, casting="unsafe")
-        else:
-            cv2.add(fr, 1, dst=fr, mask=scratch)  # type: ignore[call-overload]  # cv2's stubs: no scalar src2
+        step = np.multiply(scratch, self._q_free, out=self._raster(2, r1 - r0, bw), dtype=np.uint16)
+        t = self.tile_cells
+        # the tiles the box overlaps, numbered row by row from its first; those a return ended in
+        btr0, btc0 = r0 // t, c0 // t
+        nbc = (c1 - 1) // t - btc0 + 1
+        box_tile = (hr // t - btr0) * nbc + (hc // t - btc0)
+        has_hit = np.zeros(((r1 - 1) // t - btr0 + 1) * nbc, bool)
+        has_hit[box_tile] = True
+        where = (float(ox_m), float(oy_m))
+        # the sensor's own tile, whatever the scan saw (a scan of beams that returned nothing still
+        # places the robot in the grid)
+        self._tile(math.floor((oy_m - gy) / res) // t, math.floor((ox_m - gx) / res) // t, where)
+        for tr in range(btr0, (r1 - 1) // t + 1):
+            a0, a1 = max(r0, tr * t), min(r1, (tr + 1) * t)
+            for tc in range(btc0, (c1 - 1) // t + 1):
+                b0, b1 = max(c0, tc * t), min(c1, (tc + 1) * t)
+                sub = scratch[a0 - r0:a1 - r0, b0 - c0:b1 - c0]
+                if not cv2.countNonZero(sub):
+                    if has_hit[(tr - btr0) * nbc + tc - btc0]:
+                        self._tile(tr, tc, where)  # returns only: their counts go in below
+                    continue  # no free space here (a corner of the box, or outside the building)
+                tile = self._tile(tr, tc, where)
+                win = (slice(a0 - tr * t, a1 - tr * t), slice(b0 - tc * t, b1 - tc * t))
+                lo = tile.lo[win]
+                cv2.subtract(lo, step[a0 - r0:a1 - r0, b0 - c0:b1 - c0], dst=lo)  # saturates at 0, which is l_min
+                fr = tile.free[win]
+                if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
+                    np.add(fr, sub, out=fr, casting="unsafe")
+                else:
+                    cv2.add(fr, 1, dst=fr, mask=sub)  # type: ignore[call-overload]  # cv2's stubs: no scalar src2
 
         if hr.size:
-            # one sorted key per (cell, evidence code): codes 0-3 mobility, 4+ class layer
-            flat = hr * W + hc
+            # one sorted key per (cell, evidence code): codes 0-3 mobility, 4+ class layer; cells
+            # counted in the scan's box
+            flat = (hr - r0) * bw + (hc - c0)
             mob = scan.mobility[hit].astype(np.intp)
             mob[mob >= N_MOBILITY] = 0
             cid = scan.class_id[hit].astype(np.intp)
             seen = (cid >= 0) & (cid < len(self.class_names))
             layer = self._class_layers(cid[seen]) if seen.any() else np.zeros(0, np.intp)
-            n_codes = N_MOBILITY + self._cls.shape[0]
+            n_codes = N_MOBILITY + len(self._cls_ids)
             keys = np.concatenate([flat * n_codes + mob, flat[seen] * n_codes + N_MOBILITY + layer])
             keys.sort()
             keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]
             cell = keys // n_codes
             code = keys - cell * n_codes
-            ucell = cell[np.concatenate([[True], cell[1:] != cell[:-1]])]
-
-            lo_flat = self._lo.reshape(-1)
-            lo_flat[ucell] = np.minimum(lo_flat[ucell].astype(np.int32) + self._q_occ, self._q_max)
-            _bump(self._hits.reshape(-1), ucell)
-            is_mob = code < N_MOBILITY
-            _bump(self._mob.reshape(-1), code[is_mob] * (H * W) + cell[is_mob])
-            if not is_mob.all():
-                is_cls = ~is_mob
-                _bump(self._cls.reshape(-1), (code[is_cls] - N_MOBILITY) * (H * W) + cell[is_cls])
+            first = np.concatenate([[True], cell[1:] != cell[:-1]])
+            rr, cc = cell // bw + r0, cell % bw + c0
+            tr_of, tc_of = rr // t, cc // t
+            local = (rr - tr_of * t) * t + (cc - tc_of * t)
+            tile_ids, tile_of = np.unique((tr_of - btr0) * nbc + (tc_of - btc0), return_inverse=True)
+            for i, b in enumerate(tile_ids.tolist()):
+                tile = self._tiles[(btr0 + b // nbc, btc0 + b % nbc)]
+                here = tile_of == i
+                lu = local[here & first]
+                lo_flat = tile.lo.reshape(-1)
+                lo_flat[lu] = np.minimum(lo_flat[lu].astype(np.int32) + self._q_occ, self._q_max)
+                _bump(tile.hits.reshape(-1), lu)
+                hc_code, hl = code[here], local[here]
+                is_mob = hc_code < N_MOBILITY
+                _bump(tile.mob.reshape(-1), hc_code[is_mob] * (t * t) + hl[is_mob])
+                if not is_mob.all():
+                    for k_layer in np.unique(hc_code[~is_mob] - N_MOBILITY).tolist():
+                        arr = tile.cls.get(k_layer)
+                        if arr is None:
+                            arr = tile.cls[k_layer] = np.zeros((t, t), np.uint16)
+                            self._tile_bytes += arr.nbytes
+                        _bump(arr.reshape(-1), hl[hc_code == N_MOBILITY + k_layer])
         self.n_scans += 1
 
     def _raster(self, i: int, h: int, w: int) -> NDArray[Any]:
-        """Scratch raster ``i`` as an (h, w) array (contents undefined), grown as windows grow."""
+        """Scratch raster ``i`` as an (h, w) array (contents undefined), grown as boxes grow."""
         buf = self._scratch[i]
         if buf.size < h * w:
             buf = self._scratch[i] = np.empty(h * w, buf.dtype)
         return buf[:h * w].reshape(h, w)
 
     def layers(self) -> GridLayers:
-        """A read-only snapshot of the grid (copies; the grid keeps integrating)."""
+        """A read-only snapshot of the grid: its tiles assembled into one window, their bounding box
+        (copies; the grid keeps integrating). Cells of tiles never allocated are unobserved."""
         spec = self.spec
         if spec is None:
             raise ValueError("the grid is empty: integrate a scan first")
+        t = self.tile_cells
+        tr0, _, tc0, _ = self._tile_span()
+        h, w = spec.height, spec.width
+        n_cls = len(self._cls_ids)
+        log_odds = np.zeros((h, w), np.float32)
+        hits = np.zeros((h, w), np.uint16)
+        free = np.zeros((h, w), np.uint16)
+        mob = np.zeros((N_MOBILITY, h, w), np.uint16)
+        cls = np.zeros((n_cls, h, w), np.uint16)
+        for (tr, tc), tile in self._tiles.items():
+            win = (slice((tr - tr0) * t, (tr - tr0 + 1) * t), slice((tc - tc0) * t, (tc - tc0 + 1) * t))
+            np.multiply(tile.lo.astype(np.int32) - self._q_zero, LOG_ODDS_STEP, out=log_odds[win], casting="unsafe")
+            hits[win] = tile.hits
+            free[win] = tile.free
+            mob[(slice(None), *win)] = tile.mob
+            for k, arr in tile.cls.items():
+                cls[(k, *win)] = arr
         return GridLayers(
             spec=spec,
-            log_odds=_frozen(((self._lo.astype(np.int32) - self._q_zero) * LOG_ODDS_STEP).astype(np.float32)),
-            hits=_frozen(self._hits.copy()),
-            free=_frozen(self._free.copy()),
-            mobility=_frozen(self._mob.copy()),
-            class_counts=_frozen(self._cls.copy()),
+            log_odds=_frozen(log_odds),
+            hits=_frozen(hits),
+            free=_frozen(free),
+            mobility=_frozen(mob),
+            class_counts=_frozen(cls),
             class_ids=tuple(self._cls_ids),
             class_names=self.class_names,
             n_scans=self.n_scans,
-            sightings=_frozen(self._window_sightings()),
+            sightings=_frozen(self._window_sightings(tr0 * t, tc0 * t)),
+            grid_bytes=self.nbytes,
+            grid_tiles=len(self._tiles),
         )
 
-    def _window_sightings(self) -> NDArray[np.int32]:
+    def _window_sightings(self, row0: int, col0: int) -> NDArray[np.int32]:
         if not self._sightings:
             return np.zeros((0, 4), np.int32)
         if len(self._sightings) > 1:  # one array from now on
             self._sightings = [np.concatenate(self._sightings)]
         out = self._sightings[0].copy()
-        out[:, 2] -= round(self._oy / self.res)
-        out[:, 3] -= round(self._ox / self.res)
+        out[:, 2] -= row0
+        out[:, 3] -= col0
         return out
 
 
@@ -469,13 +542,15 @@ MEMORY_SHARE = 0.5
 class GridMemoryEstimate:
     """What a :class:`SemanticGrid` allocates, worst case, for a LiDAR of a given range.
 
-    * ``window_m``: the first window's side, m: the farthest returns on both sides plus ``tile_margin``.
-    * ``first_window_bytes``: its layers (log-odds, hits, free, mobility, one layer per class).
+    * ``window_m``: the side of the square of tiles the first scan may reach (its farthest returns
+      on both sides, rounded out to whole tiles of ``tile_margin``).
+    * ``first_window_bytes``: those tiles' layers (log-odds, hits, free, mobility, and a layer for
+      every class in every tile: the worst case).
     * ``scratch_bytes``: the rasters one scan is drawn into (its bounding box).
-    * ``class_copy_bytes``: the class layers once more: adding layers for classes seen for the first
-      time copies the existing ones.
-    * ``growth_bytes``: the peak while the window grows by ``tile_margin`` on two sides: the old and
-      the new layers are both held while the old ones are copied.
+    * ``class_copy_bytes``: 0 (kept for callers of older versions: class layers are added per tile,
+      copying nothing).
+    * ``growth_bytes``: the layers once a scan has moved into the next row and column of tiles (tiles
+      are added, nothing is copied), plus the scratch.
     """
 
     window_m: float
@@ -486,34 +561,31 @@ class GridMemoryEstimate:
 
     @property
     def peak_bytes(self) -> float:
-        """The most held at once: the first window while its class layers are added, or one growth step."""
+        """The most held at once: the first tiles and the scratch, or one growth step."""
         return max(self.first_window_bytes + self.class_copy_bytes + self.scratch_bytes, self.growth_bytes)
 
 
 def estimate_grid_memory(cfg: GridConfig, max_range: float, n_classes: int) -> GridMemoryEstimate:
-    """The memory a grid needs for its first window and one growth step (see :class:`GridMemoryEstimate`).
+    """The memory a grid needs for its first scan and one growth step (see :class:`GridMemoryEstimate`).
 
     ``max_range`` is the farthest return the LiDAR reports (its ``range_max``), m; a non-finite one
     counts as ``cfg.max_range``; the grid uses no return beyond ``cfg.max_range``. Every one of
-    ``n_classes`` is assumed seen (one layer each).
+    ``n_classes`` is assumed seen in every tile (one layer each).
     Floats, so absurd settings give huge numbers (or inf) instead of overflowing.
     """
     res = float(cfg.resolution)
     reach = _reach(cfg, max_range)
-    margin = float(cfg.tile_margin)
     per_cell = _CELL_BYTES + 2.0 * max(int(n_classes), 0)
-
-    def cells(length: float) -> float:  # cells along a side, as _ensure() rounds: origin floored, +1
-        n = length / res
-        return float(math.ceil(n) + 2) if math.isfinite(n) else math.inf
-
-    side = 2.0 * reach + 2.0 * margin
-    n0, n1, ns = cells(side), cells(side + margin), cells(2.0 * reach)
-    first = n0 * n0 * per_cell  # products of floats: inf, never OverflowError, for absurd settings
-    grown = n1 * n1 * per_cell
-    scratch = ns * ns * _SCRATCH_BYTES  # a scan's bounding box
-    class_copy = n0 * n0 * 2.0 * max(int(n_classes), 0)
-    return GridMemoryEstimate(side, first, scratch, class_copy, first + grown + scratch)
+    tile = float(max(16, round(cfg.tile_margin / res))) if math.isfinite(cfg.tile_margin / res) else math.inf
+    box = 2.0 * reach / res + 2.0  # a scan's bounding box, cells (floored origin, +1)
+    if not (math.isfinite(box) and math.isfinite(tile)):
+        return GridMemoryEstimate(math.inf, math.inf, math.inf, 0.0, math.inf)
+    n_side = float(math.ceil(box / tile) + 1)  # tiles a box can touch along a side
+    tile_bytes = tile * tile * per_cell
+    first = n_side * n_side * tile_bytes  # products of floats: inf, never OverflowError, for absurd settings
+    scratch = box * box * _SCRATCH_BYTES
+    grown = (n_side + 1.0) * (n_side + 1.0) * tile_bytes + scratch
+    return GridMemoryEstimate(n_side * tile * res, first, scratch, 0.0, grown)
 
 
 def _reach(cfg: GridConfig, max_range: float) -> float:

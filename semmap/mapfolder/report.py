@@ -73,6 +73,40 @@ def semantic_image(cleaned: CleanedMap, layers: GridLayers, class_names: tuple[s
 _OUTLINE = "#333333"  # the outline of a movable object's footprint
 
 
+def _grey(cleaned: CleanedMap, extent: tuple[float, float, float, float], px: int
+          ) -> tuple[NDArray[np.uint8], tuple[float, float, float, float]]:
+    """The map in grey (occupied dark, free white, unknown light grey) and its extent, fitted to a figure
+    about ``px`` pixels wide (:func:`_fit`)."""
+    grey = np.full(cleaned.occupied.shape, 217, np.uint8)  # 0.85 of white
+    grey[cleaned.free] = 255
+    grey[cleaned.occupied] = 64  # 0.25
+    return _fit(grey, cleaned, extent, px)
+
+
+def _fit(img: NDArray[Any], cleaned: CleanedMap, extent: tuple[float, float, float, float], px: int
+         ) -> tuple[NDArray[Any], tuple[float, float, float, float]]:
+    """``img`` (H, W[, C]) as drawn in a figure about ``px`` pixels wide: a map wider is shrunk here, each
+    block of cells showing the one that matters most (semi-static, then occupied, then dropped as dynamic,
+    then free, then unknown). matplotlib would pick one cell per pixel, losing thin walls, and
+    resample in float RGBA (a 150 m floor at 5 cm: half a gigabyte). The extent grows to the padded blocks."""
+    h, w = cleaned.occupied.shape
+    k = max(1, -(-max(h, w) // px))  # blocks of k x k cells: at most px of them across
+    if k == 1:
+        return img, extent
+    rank = np.zeros((-(-h // k) * k, -(-w // k) * k), np.uint8)
+    hp, wp = rank.shape
+    rank[:h, :w][cleaned.free] = 1
+    rank[:h, :w][cleaned.dynamic_removed] = 2
+    rank[:h, :w][cleaned.occupied] = 3
+    rank[:h, :w][cleaned.semi_static] = 4
+    pick = rank.reshape(hp // k, k, wp // k, k).transpose(0, 2, 1, 3).reshape(hp // k, wp // k, k * k).argmax(-1)
+    rows = (np.arange(hp // k)[:, None] * k + pick // k).clip(max=h - 1)
+    cols = (np.arange(wp // k)[None, :] * k + pick % k).clip(max=w - 1)
+    res_x = (extent[1] - extent[0]) / w
+    res_y = (extent[3] - extent[2]) / h
+    return img[rows, cols], (extent[0], extent[0] + wp * res_x, extent[2], extent[2] + hp * res_y)
+
+
 def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
     """Draw semantic.png, report/trajectory.png and report/classes.png; return their relative paths."""
     (out / "report").mkdir(exist_ok=True)
@@ -86,7 +120,8 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
     fig_w = 11.0
     fig_h = float(np.clip(fig_w * h_m / max(w_m, 1e-6) * 0.8 + 1.0, 3.5, 12.0))
     fig, ax = plt.subplots(figsize=(fig_w, fig_h), dpi=110)
-    ax.imshow(img, origin="lower", extent=extent, interpolation="nearest")
+    shown, shown_extent = _fit(img, cleaned, extent, 1210)
+    ax.imshow(shown, origin="lower", extent=shown_extent, interpolation="nearest")
     ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=0.8, alpha=0.7)
     # the object list: each movable object's footprint, outlined
     for o in cleaned.objects:
@@ -113,8 +148,8 @@ def render_pictures(out: Path, outcome: BuildOutcome) -> dict[str, str]:
 
     # trajectory: the map-frame estimate and the wheel odometry, aligned at the first scan
     fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
-    ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
-              cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+    grey, grey_extent = _grey(cleaned, extent, 700)
+    ax.imshow(grey, origin="lower", extent=grey_extent, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
     ax.plot(poses[:, 0], poses[:, 1], "-", color="#1f5fbf", lw=1.4,
             label=f"estimate ({outcome.config.registration.mode})")
     odom = outcome.odometry
@@ -168,8 +203,8 @@ def _frames_picture(path: Path, cleaned: CleanedMap, extent: tuple[float, float,
     from matplotlib.collections import LineCollection
 
     fig, ax = plt.subplots(figsize=(9, 6), dpi=100)
-    ax.imshow(np.where(cleaned.occupied, 0.25, np.where(cleaned.free, 1.0, 0.85)), origin="lower", extent=extent,
-              cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+    grey, grey_extent = _grey(cleaned, extent, 900)
+    ax.imshow(grey, origin="lower", extent=grey_extent, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
     fresh = (labels_from == 1).astype(np.float64)
     # the share over a window of about a metre of path (at least 5 scans), so a dense camera reads as well
     # as a sparse one

@@ -129,6 +129,13 @@ class MapSummary(_Part):
     dynamic_cells_removed: int
     semi_static_objects: int
     semi_static_objects_by_class: dict[str, int]
+    #: cells some scan hit or crossed
+    observed_cells: int | None = None
+    #: the grid while fusing: its tiles (grid.tile_margin m on a side) and their layers' bytes, and
+    #: those bytes per observed cell (what a building costs, whatever its outline)
+    grid_tiles: int | None = None
+    grid_bytes: int | None = None
+    grid_bytes_per_observed_cell: float | None = None
 
 
 class TimingsSummary(_Part):

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -26,17 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
-
-def _machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import machine
 
 
 def _simulate(work: Path, scenario: str, n: int) -> list[Path]:
@@ -102,7 +91,7 @@ def main() -> int:
         r["speedup_vs_ray_1"] = round(base["wall_s"] / r["wall_s"], 2)
     date = time.strftime("%Y-%m-%d")
     print(f"\n{args.tours} `{args.scenario}` tours ({tours[0].name} ...; simulated in {sim_s:.0f} s), {date}, "
-          f"{_machine()}:\n")
+          f"{machine()}:\n")
     print("| run | wall | tours per hour | scans/s | × tour length | mean build | speed-up vs Ray, 1 worker |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for r in results:
@@ -110,7 +99,7 @@ def main() -> int:
         print(f"| {name} | {r['wall_s']:.1f} s | {r['tours_per_h']:.0f} | {r['scans_per_s']:.0f} "
               f"| {r['real_time_factor']:.1f} | {r['build_s_mean']:.1f} s | {r['speedup_vs_ray_1']:.2f} |")
     if args.json:
-        args.json.write_text(json.dumps({"date": date, "machine": _machine(), "scenario": args.scenario,
+        args.json.write_text(json.dumps({"date": date, "machine": machine(), "scenario": args.scenario,
                                          "runs": results}, indent=1))
     return 0
 

@@ -493,16 +493,21 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
     if rows.size == 0:
         r0, r1, c0, c1 = 0, h, 0, w
     else:
-        r0, r1 = max(int(rows[0]) - _CROP_PAD, 0), min(int(rows[-1]) + _CROP_PAD + 1, h)
-        c0, c1 = max(int(cols[0]) - _CROP_PAD, 0), min(int(cols[-1]) + _CROP_PAD + 1, w)
+        # always the observed area and _CROP_PAD cells around it, padded with unobserved cells where the
+        # grid's window is tighter: what cleaning decides must not depend on where the window's edges
+        # fall (OpenCV's probabilistic Hough transform samples by position)
+        r0, r1 = int(rows[0]) - _CROP_PAD, int(rows[-1]) + _CROP_PAD + 1
+        c0, c1 = int(cols[0]) - _CROP_PAD, int(cols[-1]) + _CROP_PAD + 1
     if (r0, r1, c0, c1) == (0, h, 0, w):
         return _clean(layers, cfg, names)
     sub = _crop(layers, r0, r1, c0, c1)
     cm = _clean(sub, cfg, names)
+    inside = (slice(max(r0, 0), min(r1, h)), slice(max(c0, 0), min(c1, w)))
+    of_sub = (slice(max(r0, 0) - r0, min(r1, h) - r0), slice(max(c0, 0) - c0, min(c1, w) - c0))
 
     def full(mask: NDArray[np.bool_], fill: bool) -> NDArray[np.bool_]:
         out = np.full((h, w), fill, bool)
-        out[r0:r1, c0:c1] = mask
+        out[inside] = mask[of_sub]
         return out
 
     return CleanedMap(layers.spec, full(cm.occupied, False), full(cm.free, False), full(cm.unknown, True),
@@ -510,13 +515,27 @@ def clean(layers: GridLayers, cfg: CleaningConfig | None = None,
 
 
 def _crop(layers: GridLayers, r0: int, r1: int, c0: int, c1: int) -> GridLayers:
+    """Rows ``r0:r1`` and columns ``c0:c1`` of the layers (views); a range reaching past the window is
+    padded with unobserved cells (copies)."""
     sp = layers.spec
+    h, w = sp.shape
     spec = GridSpec(sp.resolution, sp.origin_x + c0 * sp.resolution, sp.origin_y + r0 * sp.resolution,
                     c1 - c0, r1 - r0)
-    win = (slice(r0, r1), slice(c0, c1))
-    return GridLayers(spec, layers.log_odds[win], layers.hits[win], layers.free[win],
-                      layers.mobility[(slice(None), *win)], layers.class_counts[(slice(None), *win)],
-                      layers.class_ids, layers.class_names, layers.n_scans,
+    if r0 >= 0 and c0 >= 0 and r1 <= h and c1 <= w:
+        win = (slice(r0, r1), slice(c0, c1))
+
+        def take(a: NDArray[Any]) -> NDArray[Any]:
+            return a[(..., *win)]
+    else:
+        src = (slice(max(r0, 0), min(r1, h)), slice(max(c0, 0), min(c1, w)))
+        dst = (slice(max(r0, 0) - r0, min(r1, h) - r0), slice(max(c0, 0) - c0, min(c1, w) - c0))
+
+        def take(a: NDArray[Any]) -> NDArray[Any]:
+            out = np.zeros((*a.shape[:-2], r1 - r0, c1 - c0), a.dtype)
+            out[(..., *dst)] = a[(..., *src)]
+            return out
+    return GridLayers(spec, take(layers.log_odds), take(layers.hits), take(layers.free), take(layers.mobility),
+                      take(layers.class_counts), layers.class_ids, layers.class_names, layers.n_scans,
                       crop_sightings(layers.sightings, r0, r1, c0, c1))
 
 

@@ -151,6 +151,10 @@ class GridLayers:
                    + self.class_counts.nbytes + self.sightings.nbytes)
 
 
+#: m of unobserved cells kept around the tiles in the window :meth:`SemanticGrid.layers` assembles
+_WINDOW_PAD_M = 2.0
+
+
 class _Tile:
     """One square tile of the grid: its cells' layers (class layers only for the classes hit in it)."""
 
@@ -226,14 +230,20 @@ class SemanticGrid:
         return min(rows), max(rows) + 1, min(cols), max(cols) + 1
 
     @property
+    def _pad(self) -> int:
+        """Unobserved cells the window of :meth:`layers` keeps around the tiles' bounding box: a wall at a
+        tile's edge is not at the map's (the map folder keeps a metre around what was observed)."""
+        return math.ceil(_WINDOW_PAD_M / self.res)
+
+    @property
     def spec(self) -> GridSpec | None:
-        """The window of :meth:`layers`: the tiles' bounding box; None before the first scan."""
+        """The window of :meth:`layers`: the tiles' bounding box and a margin; None before the first scan."""
         if not self._tiles:
             return None
-        t = self.tile_cells
+        t, p = self.tile_cells, self._pad
         tr0, tr1, tc0, tc1 = self._tile_span()
-        return GridSpec(self.res, self._gx + tc0 * t * self.res, self._gy + tr0 * t * self.res, (tc1 - tc0) * t,
-                        (tr1 - tr0) * t)
+        return GridSpec(self.res, self._gx + (tc0 * t - p) * self.res, self._gy + (tr0 * t - p) * self.res,
+                        (tc1 - tc0) * t + 2 * p, (tr1 - tr0) * t + 2 * p)
 
     @property
     def nbytes(self) -> int:
@@ -479,7 +489,7 @@ class SemanticGrid:
         spec = self.spec
         if spec is None:
             raise ValueError("the grid is empty: integrate a scan first")
-        t = self.tile_cells
+        t, p = self.tile_cells, self._pad
         tr0, _, tc0, _ = self._tile_span()
         h, w = spec.height, spec.width
         n_cls = len(self._cls_ids)
@@ -489,7 +499,7 @@ class SemanticGrid:
         mob = np.zeros((N_MOBILITY, h, w), np.uint16)
         cls = np.zeros((n_cls, h, w), np.uint16)
         for (tr, tc), tile in self._tiles.items():
-            win = (slice((tr - tr0) * t, (tr - tr0 + 1) * t), slice((tc - tc0) * t, (tc - tc0 + 1) * t))
+            win = (slice((tr - tr0) * t + p, (tr - tr0 + 1) * t + p), slice((tc - tc0) * t + p, (tc - tc0 + 1) * t + p))
             np.multiply(tile.lo.astype(np.int32) - self._q_zero, LOG_ODDS_STEP, out=log_odds[win], casting="unsafe")
             hits[win] = tile.hits
             free[win] = tile.free
@@ -506,7 +516,7 @@ class SemanticGrid:
             class_ids=tuple(self._cls_ids),
             class_names=self.class_names,
             n_scans=self.n_scans,
-            sightings=_frozen(self._window_sightings(tr0 * t, tc0 * t)),
+            sightings=_frozen(self._window_sightings(tr0 * t - p, tc0 * t - p)),
             grid_bytes=self.nbytes,
             grid_tiles=len(self._tiles),
         )

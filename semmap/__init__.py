@@ -7,6 +7,7 @@ The public API::
     info = semmap.bag_info(result.bag)
     m = semmap.load_map("maps/demo")          # a map folder written by semmap build
     d = semmap.diff("maps/week1", "maps/week2", out="diffs/week2")  # what changed
+    r = semmap.run_batch("fleet.yaml", "maps/2026-11-27")           # a fleet's tours, on Ray if installed
     e = semmap.export("maps/demo", "robot/demo", semmap.ExportSettings(crop_margin=0.5))  # maps for a robot
 
 Heavy modules load on first use, so ``import semmap`` stays fast.
@@ -24,6 +25,8 @@ _LAZY = {
     "load_map": "semmap.mapfolder.reader",
     "diff": "semmap.compare",
     "diff_history": "semmap.compare.history",
+    "run_batch": "semmap.batch",
+    "BatchResult": "semmap.batch",
     "DiffResult": "semmap.compare",
     "export": "semmap.robotmap",
     "ExportSettings": "semmap.robotmap",
@@ -57,6 +60,7 @@ __all__ = ["__version__", *_LAZY]  # noqa: PLE0604 - the lazy names are strings
 
 if TYPE_CHECKING:  # pragma: no cover
     # ruff: noqa: F401
+    from .batch import BatchResult, run_batch
     from .compare import DiffResult, diff
     from .compare.history import diff_history
     from .config import BuildConfig, SimConfig

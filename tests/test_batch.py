@@ -209,6 +209,9 @@ def test_the_output_must_be_new_or_an_earlier_batch(tours, tmp_path):
     assert (tmp_path / "notes" / "todo.txt").read_text() == "keep me"
     with pytest.raises(ConfigError, match="inside the output folder"):
         run_batch(_manifest(tours, THREE_SITES, "three-in.yaml"), tours, engine="local")
+    with pytest.raises(ConfigError, match="--workers sizes a local Ray"):
+        run_batch(_manifest(tours, THREE_SITES, "three-w.yaml"), tmp_path / "w", workers=2, address="auto")
+    assert not (tmp_path / "w").exists()
 
 
 def _descendants(pid: int) -> set[int]:

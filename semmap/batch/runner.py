@@ -280,6 +280,9 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
     out = Path(out).expanduser().resolve()
     _, jobs = load_manifest(manifest, out)
     created = _check_out(out)
+    if workers is not None and address is not None:
+        raise ConfigError(f"--workers {workers} with --address {address}: --workers sizes a local Ray; a cluster runs "
+                          "as many jobs at once as its cores allow (--cpus-per-job)")
     if engine == "ray" and not ray_available():
         raise ConfigError("--engine ray: Ray is not installed (pip install 'semmap[fleet]')")
     use_ray = engine == "ray" or (engine == "auto" and ray_available())

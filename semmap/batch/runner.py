@@ -272,9 +272,8 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
     with more than 0, a tour whose config runs a segmentation model is segmented first in a task of its
     own asking for that many GPUs (into ``<site>/labels/<tour>``), and built from those labels in a
     task that asks for none, so the model runs on GPU nodes and the mapping on CPU nodes; ``local_gpus``:
-    the GPUs a local Ray offers (default: those it detects). Finished map
-    folders that are up to date are kept (see the module's documentation). ``on_event`` hears of
-    each job as it ends.
+    the GPUs a local Ray offers (default: those it detects). Finished map folders that are up to date
+    are kept (see the module's documentation). ``on_event`` hears of each job as it ends.
     """
     t0 = time.perf_counter()
     out = Path(out).expanduser().resolve()
@@ -296,7 +295,8 @@ def run_batch(manifest: str | Path, out: str | Path, *, address: str | None = No
         if v < 0 or (v > 0 and not use_ray):
             raise ConfigError(f"{name} {v:g}: must be >= 0, and needs Ray")
     if not use_ray:
-        log.info("Ray is not installed: the %d tours are built one after another in this process", len(jobs))
+        log.info("%s: the %d tours are built one after another in this process",
+                 "--engine local" if engine == "local" else "Ray is not installed", len(jobs))
 
     previous = _read_previous(out)
     rows: dict[str, dict[str, Any]] = {}

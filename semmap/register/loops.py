@@ -1143,8 +1143,7 @@ class LoopCloser:
         if stored.shape[0] < cfg.min_points or dense.shape[0] < cfg.min_points:
             self._counts["rematch_kept"] += 1
             return rel, info
-        if dense.shape[0] > cfg.max_query_points:
-            dense = dense[np.linspace(0, dense.shape[0] - 1, cfg.max_query_points).astype(np.int64)]
+        dense = _thin(dense, cfg.max_query_points)
         sub = _Submap(stored[:, :2], stored[:, 2])
         match = _evaluate(sub, dense, _align(sub, dense, rel, cfg), cfg)
         if match.inliers < cfg.min_inliers or match.condition < cfg.min_condition or match.rms > cfg.max_rms:
@@ -1331,8 +1330,7 @@ class LoopCloser:
         else:
             sub_fine = sub
         full_query = dense
-        if dense.shape[0] > cfg.max_query_points:
-            dense = dense[np.linspace(0, dense.shape[0] - 1, cfg.max_query_points).astype(np.int64)]
+        dense = _thin(dense, cfg.max_query_points)
         q3 = np.zeros((source.shape[0], 3))
         q3[:, :2] = source
         query = PreparedScan(q3, q3)
@@ -1386,6 +1384,13 @@ class LoopCloser:
         log.debug("loop %d-%d accepted (%s): %.0f%% inliers, condition %.3f, rms %.3f m", j, k, best_kind,
                   100 * best.inliers, best.condition, best.rms)
         return _Loop(j, k, best.pose, _inverse_spd(best.cov), best_kind)
+
+
+def _thin(points: F64, n: int) -> F64:
+    """At most ``n`` of ``points``, evenly spread over them (a keyframe's query points)."""
+    if points.shape[0] <= n:
+        return points
+    return points[np.linspace(0, points.shape[0] - 1, n).astype(np.int64)]
 
 
 def _compose_chain(first: F64, steps: F64) -> F64:

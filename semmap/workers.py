@@ -695,7 +695,8 @@ def _pose_array(poses: array) -> NDArray[np.float64]:
 def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection, cfg: dict[str, Any]) -> None:
     from .register import Registrar
 
-    registrar = Registrar(RegistrationConfig.model_validate(cfg))
+    # loop closure runs in the fusion worker (see _fusion_body): each scan's points go there with it
+    registrar = Registrar(RegistrationConfig.model_validate(cfg), close_loops_here=False)
     out.send(("ready",))
     cpu0 = time.process_time()
     poses = array("d")  # x, y, yaw per scan: 24 bytes a scan
@@ -706,16 +707,11 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
         for painted, odom_pose, prepared in batch:
             pose = registrar.register(painted, odom_pose, prepared)
             poses.extend(pose.tolist())
-            done.append((pose, painted))
+            done.append((pose, painted, registrar.loop_points))
         busy += time.perf_counter() - t0
         to_fusion.send(done)
     to_fusion.send(None)
-    t0 = time.perf_counter()
-    final = registrar.close_loops()  # None without loop closure
-    busy += time.perf_counter() - t0
-    to_fusion.send(final)
-    out.send(("poses", _pose_array(poses) if final is None else final, registrar.stats, busy, peak_rss_mb(),
-              time.process_time() - cpu0))
+    out.send(("poses", _pose_array(poses), registrar.stats, busy, peak_rss_mb(), time.process_time() - cpu0))
 
 
 def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...],
@@ -725,25 +721,37 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
         os.nice(5)
     from .grid import SemanticGrid
     from .grid.consistency import EndpointSample
+    from .register.registrar import loop_closer, solve_loops
 
     grid_cfg = GridConfig.model_validate(cfg)
+    registration = RegistrationConfig.model_validate(reg_cfg)
     grid = SemanticGrid(grid_cfg, class_names)
     sample = EndpointSample()
-    refuse = _Refusion(RegistrationConfig.model_validate(reg_cfg))
+    refuse = _Refusion(registration)
+    # with loop closure, fusion waits for the end of the tour (the scans are spooled), so this worker has
+    # the time to close the loops: their search stays off the registration's critical path
+    closer = loop_closer(registration)
     out.send(("ready",))
     cpu0 = time.process_time()
-    busy = 0.0
+    busy = loops_s = 0.0
     poses = array("d")
+    final = loop_stats = None
     try:
         while (batch := inbox.recv()) is not None:
             t0 = time.perf_counter()
-            for pose, painted in batch:
+            for pose, painted, loop_points in batch:
                 refuse.add(grid, pose, painted)
                 sample.add(len(poses) // 3, painted)
+                if closer is not None and loop_points is not None:
+                    t1 = time.perf_counter()
+                    closer.add(len(poses) // 3, pose, loop_points)
+                    loops_s += time.perf_counter() - t1
                 poses.extend(np.asarray(pose, np.float64).tolist())
             busy += time.perf_counter() - t0
-        final = inbox.recv()  # the poses loop closure corrected (None: as registered)
         t0 = time.perf_counter()
+        if closer is not None:
+            final, loop_stats = solve_loops(closer)  # the poses loop closure corrected
+            loops_s += time.perf_counter() - t0
         grid = refuse.fuse_at_end(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names)) or grid
         busy += time.perf_counter() - t0
     finally:
@@ -751,7 +759,8 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     cpu = time.process_time() - cpu0
     _send_large(out, grid.layers())
     out.send(("endpoints", *sample.base_points))
-    out.send(("fused", busy, peak_rss_mb(), cpu))  # the peak includes taking the layers out
+    # the peak includes taking the layers out
+    out.send(("fused", busy - loops_s, peak_rss_mb(), cpu, final, loop_stats, loops_s))
 
 
 class MapperWorkers:
@@ -813,7 +822,14 @@ class MapperWorkers:
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses", last=True)
         _, layers = self._expect(self._fuse, "large")
         _, xy, scan_of = self._expect(self._fuse, "endpoints")
-        _, fuse_busy, fuse_rss, fuse_cpu = self._expect(self._fuse, "fused", last=True)
+        _, fuse_busy, fuse_rss, fuse_cpu, final, loop_stats, loops_s = self._expect(self._fuse, "fused", last=True)
+        if final is not None:  # loop closure, in the fusion worker: its time counts as registration's
+            poses = final
+            stats = {**stats, "loop_closure": loop_stats}
+            reg_busy += loops_s
+            seconds = stats["seconds"] + loops_s
+            stats["seconds"] = round(seconds, 3)
+            stats["scans_per_s"] = round(stats["scans"] / seconds, 1) if seconds > 0 else None
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of))

@@ -65,6 +65,23 @@ def test_worker_processes_and_one_process_build_the_same_map(demo_tour, demo_map
     assert cpu["per_scan_ms"] == pytest.approx(1000 * cpu["total"] / 418, rel=0.01)
     assert set(single.summary.cpu_s) == {"main", "total", "per_scan_ms"}
 
+def test_loop_closure_in_the_fusion_worker_gives_the_map_one_process_gives(demo_tour, tmp_path):
+    # with workers, the loop closer runs in the fusion worker (off the registration's critical path),
+    # fed each scan's points by the registration worker: the same graph, poses and grid as in one process
+    lc = {"registration": {"loop_closure": {"enabled": True}}}
+    two = build(demo_tour.out, tmp_path / "workers", overrides=lc)
+    one = build(demo_tour.out, tmp_path / "single", overrides={**lc, "workers": False})
+    a, b = np.load(two.out / "grid.npz"), np.load(one.out / "grid.npz")
+    assert np.array_equal(a["log_odds"], b["log_odds"]) and np.array_equal(a["mobility"], b["mobility"])
+    assert read_tum(two.out / "trajectory.tum")[1] == pytest.approx(read_tum(one.out / "trajectory.tum")[1])
+    loops = [json.loads((r.out / "summary.json").read_text())["registration"]["loop_closure"] for r in (two, one)]
+    assert loops[0]["keyframes"] == loops[1]["keyframes"] > 10
+    assert loops[0]["rematched"] == loops[1]["rematched"] > 0 and loops[0]["loops"] == loops[1]["loops"]
+    # the loop closer's time counts as registration's
+    reg = json.loads((two.out / "summary.json").read_text())["registration"]
+    assert reg["seconds"] >= loops[0]["seconds_search"] + loops[0]["seconds_rematch"]
+
+
 
 @pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
 def test_ros2_tours_with_jpeg_images_and_mono8_labels(tmp_path, fmt):

@@ -35,7 +35,10 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
 
 With ``loop_closure.enabled``, every registered scan also goes to a
 :class:`~semmap.register.loops.LoopCloser`; :meth:`Registrar.close_loops` solves its pose graph
-at the end of the tour.
+at the end of the tour. The loop closer needs nothing back until then, so it may run elsewhere
+(``Registrar(cfg, close_loops_here=False)``: each scan's points are left in
+:attr:`Registrar.loop_points` for it; the build runs it in the fusion worker, off the
+registration's critical path).
 
 With ``exclude_dynamic``, points painted :attr:`~semmap.records.Mobility.DYNAMIC`
 are neither matched nor inserted into the local map. Only beams with ``hit`` set
@@ -91,6 +94,32 @@ def _as_pose(p: ArrayLike | None, what: str) -> NDArray[np.float64] | None:
     return a
 
 
+def loop_closer(cfg: RegistrationConfig) -> Any:
+    """The :class:`~semmap.register.loops.LoopCloser` ``cfg.loop_closure`` asks for (None: off). It takes each
+    registered scan's pose and down-sampled points and needs nothing back until the end of the tour, so it may
+    run in another process than the registration (the build's fusion worker, idle while loop closure defers
+    fusion to the end)."""
+    if not cfg.loop_closure.enabled:
+        return None
+    from .loops import LoopCloser, LoopConfig
+
+    lc = cfg.loop_closure
+    return LoopCloser(LoopConfig(
+        keyframe_distance=lc.keyframe_distance, keyframe_angle=lc.keyframe_angle,
+        min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
+        descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance,
+        rematch=lc.rematch), cfg)
+
+
+def solve_loops(closer: Any) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Solve a :func:`loop_closer`'s pose graph: the corrected poses (N, 3), one per scan added, and its
+    counters for the build summary (``registration.loop_closure``)."""
+    result = closer.optimise()
+    stats = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in result.stats.items()}
+    stats["loops"] = [list(map(int, ab)) for ab in result.loops]
+    return np.asarray(result.poses, np.float64).reshape(-1, 3), stats
+
+
 class Registrar:
     """Registers painted scans one after another; see the module docstring for the modes.
 
@@ -100,23 +129,17 @@ class Registrar:
     >>> reg.stats["icp_rejected"]                              # doctest: +SKIP
     """
 
-    def __init__(self, cfg: RegistrationConfig) -> None:
+    def __init__(self, cfg: RegistrationConfig, close_loops_here: bool = True) -> None:
         self.cfg = cfg
         self._matcher: KissMatcher | None = None if cfg.mode == "odometry" else KissMatcher(cfg)
         # loop closure keeps keyframes' points: in odometry mode a matcher down-samples them and does no more
         self._sampler: KissMatcher | None = self._matcher if self._matcher is not None or not \
             cfg.loop_closure.enabled else KissMatcher(cfg)
-        self._closer: Any = None
+        self._closer: Any = loop_closer(cfg) if close_loops_here else None
         self._loop_stats: dict[str, Any] | None = None
-        if cfg.loop_closure.enabled:
-            from .loops import LoopCloser, LoopConfig
-
-            lc = cfg.loop_closure
-            self._closer = LoopCloser(LoopConfig(
-                keyframe_distance=lc.keyframe_distance, keyframe_angle=lc.keyframe_angle,
-                min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
-                descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance,
-                rematch=lc.rematch), cfg)
+        #: with loop closure run elsewhere (``close_loops_here=False``): the last registered scan's
+        #: down-sampled points (base frame), for that :class:`~semmap.register.loops.LoopCloser`'s ``add``
+        self.loop_points: NDArray[np.float64] | None = None
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
         rf = cfg.refine
         self._refiner: LineRefiner | None = LineRefiner(neighbours=rf.neighbours) \
@@ -206,8 +229,11 @@ class Registrar:
             self._counts["odom_missing"] += 1
         prep = prepared if prepared is not None else self.prepare(scan)
         pose = self._odometry_step(odom) if self.cfg.mode == "odometry" else self._scan_step(scan, odom, prep)
-        if self._closer is not None and prep is not None:
-            self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])
+        if self.cfg.loop_closure.enabled and prep is not None:
+            if self._closer is not None:
+                self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])
+            else:
+                self.loop_points = prep.scan.map_points[:, :2]
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
         self._pose = pose
@@ -224,11 +250,9 @@ class Registrar:
         if self._closer is None:
             return None
         t0 = time.perf_counter()
-        result = self._closer.optimise()
+        poses, self._loop_stats = solve_loops(self._closer)
         self._seconds += time.perf_counter() - t0
-        self._loop_stats = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in result.stats.items()}
-        self._loop_stats["loops"] = [list(map(int, ab)) for ab in result.loops]
-        return np.asarray(result.poses, np.float64).reshape(-1, 3)
+        return poses
 
     # -- modes ---------------------------------------------------------------------------
     def _odometry_step(self, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:

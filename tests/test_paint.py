@@ -239,3 +239,42 @@ def test_odometry_at_the_very_stamp_needs_no_neighbour_within_the_gap():
     assert np.allclose(odom.interpolate(1_000_000_000), [0.0, 0.0, 0.0])
     assert odom.interpolate(2_000_000_000) is None  # 3 s between samples: not interpolated
     assert odom.interpolate(np.array([1_000_000_000, 4_000_000_000])).shape == (2, 3)
+
+
+def test_a_skipped_frame_labels_from_memory_only_the_returns_its_camera_sees():
+    # with every frame segmented a return out of the camera's view is unknown; a scan paired with a frame
+    # the selection skipped must not label more: else a wall or a bed leg behind the robot gathers a
+    # label from every skipped frame, many times what segmenting them would have given it
+    from dataclasses import replace
+
+    from semmap.paint.painter import LabelMemory
+    from semmap.segment.select import SkippedFrame
+
+    t_base_lidar, calib, frame, scan, owner = _capture(*_world())
+    painter = Painter(t_base_lidar, calib, COCO, load_class_table(), PaintConfig(), SyncConfig(), 10.0,
+                      memory=LabelMemory(0.05))
+    track = OdomTrack()  # standing still
+    for t in range(-2, 12):
+        track.add(t * 10**8, np.zeros(3))
+    res = painter.paint(scan, track, Segmentation(0, frame.label, COCO))
+    first = res.painted
+    painted = [first]
+    for k in (1, 2):  # two more frames agree: the cells' labels now transfer
+        later = replace(scan, stamp_ns=k * 10**8)
+        painted.append(painter.paint(later, track, Segmentation(k * 10**8, frame.label, COCO)).painted)
+    # the whole room, behind the robot too, as if an earlier pass had looked everywhere
+    behind = first.hit.copy()
+    behind[res.view.beams] = False  # the returns out of the image
+    xy = first.points[behind]
+    for t in (5, 6):
+        painter.memory.add(t * 10**8, xy, np.full(len(xy), Mobility.STATIC, np.uint8), np.full(len(xy), -1, np.int16))
+    skipped = replace(scan, stamp_ns=7 * 10**8)
+    out = painter.paint(skipped, track, SkippedFrame(7 * 10**8)).painted
+    in_view = first.hit & (first.mobility != Mobility.UNKNOWN)
+    assert in_view.sum() > 50 and behind.sum() > 100
+    # what the camera sees takes the segmented frames' labels: the chair stays a chair
+    assert np.mean(out.mobility[in_view] == first.mobility[in_view]) > 0.9
+    assert np.all(out.mobility[(owner == 3) & in_view] == Mobility.SEMI_STATIC)
+    # what it does not see stays unknown, whatever the memory holds there
+    assert np.all(out.mobility[behind] == Mobility.UNKNOWN)
+    assert painter.stats.points_transferred == int(np.count_nonzero(out.mobility != Mobility.UNKNOWN))

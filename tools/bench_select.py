@@ -25,6 +25,15 @@ default.
     python tools/bench_select.py                        # the 20 scoring worlds + ward and office
     python tools/bench_select.py --seeds 0 1 2 3 --scenarios --modes all need
     python tools/bench_select.py --camera-hz 15 --onnx yolo11n-seg.onnx --modes all need   # build speed
+    python tools/bench_select.py --seeds 1 --scenarios --camera-hz 15 --model sam3 --modes need --project-sam3
+
+``--model BACKEND[:PATH]`` runs a model instead of reading the bag's label images: ``onnx:MODEL``,
+``mediapipe-selfie:MODEL`` or ``sam3[:FOLDER]`` (without a folder: a random-weight SAM 3 of the
+``small`` preset, ``tests/sam3_helpers.py``, prompted with ``--prompts``). It reports build speed
+against the tour's length, not map scores (random weights label nothing a scorer could use), and runs
+only the selections asked for. ``--project-sam3`` adds the full SAM 3's model time, projected from
+the measured time per frame by torch's FLOP counts of both models (embedding plus one decoder pass
+per prompt): what the selection would cost with the real model on this CPU if time followed FLOPs.
 """
 
 from __future__ import annotations
@@ -90,14 +99,48 @@ def build_and_score(name: str, tour: Path, out: Path, mode: str, extra: dict[str
             **{k: s.get(k) for k, *_ in SCORES}}
 
 
-def speed_table(rows: list[dict[str, Any]], modes: list[str], model: Path, hz: float | None) -> None:
-    """Build time against the tour's length, per selection, with a model backend (``--onnx``)."""
-    print(f"Builds with the ONNX backend ({model.name}) on {hz:g} Hz camera tours: faster than real time when "
-          f"the tour's length over the build's wall time is above 1 (map scores are not reported: the weights "
-          f"may be random)\n" if hz else f"Builds with the ONNX backend ({model.name})\n")
-    print("| mode | frames segmented (share of all frames) | model busy (s) | build wall time (s) | tour (s) | "
-          "tour / build | waiting for the model |")
-    print("|---|---|---|---|---|---|---|")
+def model_settings(spec: str, prompts: list[str]) -> tuple[dict[str, Any], str]:
+    """The ``segmentation`` settings of ``--model BACKEND[:PATH]``, and a label for the table."""
+    backend, _, path = spec.partition(":")
+    if backend == "sam3":
+        if not path:
+            sys.path.insert(0, str(REPO / "tests"))
+            from sam3_helpers import save_random_model
+
+            folder = save_random_model(Path(tempfile.mkdtemp(prefix="semmap-sam3-")) / "small", "small",
+                                       vocabulary=tuple(prompts))
+            label = f"SAM 3, `small` preset, random weights, {len(prompts)} prompts"
+        else:
+            folder, label = Path(path), f"SAM 3 ({Path(path).name}), {len(prompts)} prompts"
+        return {"backend": "sam3", "model": str(Path(folder).resolve()), "prompts": list(prompts)}, label
+    if backend in ("onnx", "mediapipe-selfie") and path:
+        return {"backend": backend, "model": str(Path(path).resolve())}, f"{backend} ({Path(path).name})"
+    raise SystemExit(f"bench_select.py: --model {spec!r}: expected onnx:MODEL, mediapipe-selfie:MODEL or "
+                     f"sam3[:FOLDER]")
+
+
+def sam3_factor(prompts: int) -> float:
+    """How many times the `small` preset's FLOPs per frame (504 px) the full SAM 3's are (1008 px), with
+    ``prompts`` decoder passes each: torch's counts (``tests/sam3_helpers.flop_split``)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from sam3_helpers import flop_split, random_config
+
+    full, small = flop_split(), flop_split(random_config("small"))
+    return (full["vision"] + prompts * full["decoder"]) / (small["vision"] + prompts * small["decoder"])
+
+
+def speed_table(rows: list[dict[str, Any]], modes: list[str], label: str, hz: float | None,
+                factor: float | None = None) -> None:
+    """Build time against the tour's length, per selection, with a model backend (``--model``)."""
+    print(f"Builds with {label} on {hz:g} Hz camera tours: faster than real time when the tour's length over "
+          f"the build's wall time is above 1 (map scores are not reported: the weights may be random)\n" if hz
+          else f"Builds with {label}\n")
+    head = ("| mode | frames segmented (share of all frames) | model busy (s) | model per frame (ms) | build wall "
+            "time (s) | tour (s) | tour / build | waiting for the model |")
+    if factor is not None:
+        head += " full SAM 3, projected: model time (s) | tour / model time |"
+    print(head)
+    print("|---|---|---|---|---|---|---|---|" + ("---|---|" if factor is not None else ""))
     for mode in modes:
         rs = [r for r in rows if r["mode"] == mode]
         frames = sum(r["frames"] or 0 for r in rs)
@@ -107,8 +150,16 @@ def speed_table(rows: list[dict[str, Any]], modes: list[str], model: Path, hz: f
         dur = sum(r["duration_s"] for r in rs)
         loop = sum(r["loop_s"] or 0.0 for r in rs)
         wait = sum(r["wait_model_s"] or 0.0 for r in rs)
-        print(f"| {mode} | {frames} ({100 * frames / max(total, 1):.0f} %) | {busy:.1f} | {wall:.1f} | {dur:.1f} | "
-              f"**{dur / wall:.2f}** | {100 * wait / loop if loop else 0:.0f} % |")
+        line = (f"| {mode} | {frames} ({100 * frames / max(total, 1):.0f} %) | {busy:.1f} | "
+                f"{1000 * busy / max(frames, 1):.0f} | {wall:.1f} | {dur:.1f} | **{dur / wall:.2f}** | "
+                f"{100 * wait / loop if loop else 0:.0f} % |")
+        if factor is not None:
+            projected = busy * factor
+            line += f" {projected:.0f} | {dur / projected if projected else float('nan'):.3f} |"
+        print(line)
+    if factor is not None:
+        print(f"\n(the full SAM 3 at 1008 px costs {factor:.1f}× the `small` preset's FLOPs per frame with these "
+              f"prompts; projected time = model busy × that, if time followed FLOPs)")
 
 
 def deltas(row: dict[str, Any], ref: dict[str, Any]) -> dict[str, float]:
@@ -140,17 +191,32 @@ def main() -> int:
                          "trajectory and the scores differ by the labels alone (by default the registration leaves "
                          "out returns painted as people, so labels move the poses by a few millimetres, and thin "
                          "legs flip in and out of the map)")
+    ap.add_argument("--model", metavar="BACKEND[:PATH]",
+                    help="segment with a model instead of the bag's label images: onnx:MODEL, "
+                         "mediapipe-selfie:MODEL or sam3[:FOLDER] (default folder: a random-weight SAM 3 of the "
+                         "small preset); reports build speed against the tour's length instead of map scores")
+    ap.add_argument("--prompts", default="person,chair,couch,bed,dining table,potted plant",
+                    help="with --model sam3: the text prompts, comma-separated (default: the simulator's classes)")
+    ap.add_argument("--project-sam3", action="store_true",
+                    help="with --model sam3: also project the full SAM 3's model time from torch's FLOP counts")
     ap.add_argument("--onnx", type=Path, metavar="MODEL",
                     help="segment with this ONNX model (e.g. YOLO11n-seg) instead of the bag's label images, and "
                          "report build speed against the tour's length instead of map scores")
     add_set_argument(ap)
     args = ap.parse_args()
     if args.onnx is not None:
-        args.set = {**args.set, "segmentation": {**args.set.get("segmentation", {}), "backend": "onnx",
-                                                 "model": str(args.onnx.resolve())}}
+        if args.model is not None:
+            ap.error("--onnx MODEL is --model onnx:MODEL: give one of them")
+        args.model = f"onnx:{args.onnx}"
+    label = ""
+    if args.model is not None:
+        seg, label = model_settings(args.model, [p.strip() for p in args.prompts.split(",") if p.strip()])
+        args.set = {**args.set, "segmentation": {**args.set.get("segmentation", {}), **seg}}
+    if args.project_sam3 and not (args.model or "").startswith("sam3"):
+        ap.error("--project-sam3 needs --model sam3")
     if args.same_poses:
         args.set = {**args.set, "registration": {**args.set.get("registration", {}), "exclude_dynamic": False}}
-    if "all" not in args.modes:
+    if "all" not in args.modes and args.model is None:  # the reference of the map scores
         args.modes.insert(0, "all")
     worlds = [f"random:{s}" for s in args.seeds] + list(args.scenarios)
     if not worlds:
@@ -176,9 +242,9 @@ def main() -> int:
                     import shutil
 
                     shutil.rmtree(out)
-                row = build_and_score(name, Path(tour), out, mode, args.set, score=args.onnx is None)
+                row = build_and_score(name, Path(tour), out, mode, args.set, score=args.model is None)
                 rows.append(row)
-                if args.onnx is not None:
+                if args.model is not None:
                     print(f"  {name:<12} {mode:<10} frames {row['frames']:>4}  build {row['build_s']:.1f} s for a "
                           f"{row['duration_s']:.1f} s tour", file=sys.stderr)
                     continue
@@ -195,8 +261,9 @@ def main() -> int:
           + (f"; camera at {args.camera_hz:g} Hz" if args.camera_hz else "; each world's own camera rate")
           + ("; the same poses for every selection (registration.exclude_dynamic: false)" if args.same_poses else "")
           + "\n")
-    if args.onnx is not None:
-        speed_table(rows, args.modes, args.onnx, args.camera_hz)
+    if args.model is not None:
+        factor = sam3_factor(len(args.set["segmentation"]["prompts"])) if args.project_sam3 else None
+        speed_table(rows, args.modes, label, args.camera_hz, factor)
         if args.json:
             args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
                                              "worlds": worlds, "rows": rows}, indent=2, default=float))

@@ -506,8 +506,12 @@ class Painter:
                 keep = labelled[mobility[labelled] != Mobility.UNKNOWN]
                 self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
         elif (isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory is not None
-              and self.memory.frame_ns is not None):
+              and self.memory.frame_ns is not None and self.calib is not None):
+            # only the returns this frame's camera saw: a mask would have labelled no other (with every frame
+            # segmented, a return out of view is unknown, and a cell gets as many labels from skipped frames as
+            # it would have got from them segmented)
             idx = np.flatnonzero(hit)
+            idx = idx[self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]]
             found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
             mobility[idx[found]] = mob[found]
             class_id[idx[found]] = cls[found]
@@ -526,6 +530,48 @@ class Painter:
         )
         return PaintResult(painted, odom_pose, view)
 
+    def _project(self, xy: NDArray[np.float64], z: NDArray[np.float64], sel: NDArray[np.intp], t_ref: int,
+                 odom: OdomTrack | None, image_ns: int, count: bool = True,
+                 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]:
+        """Points ``sel`` (base frame at ``t_ref``) in the image taken at ``image_ns``: their pixels (S, 2), which
+        lie ahead of the camera in a column of the image, which land in the image, and the camera centre in the
+        reference-time base frame (for the occlusion filter). ``count``: into the paint statistics."""
+        assert self.calib is not None
+        intr = self.calib.intrinsics
+        # the camera sees the points where they were at the image's capture time: T_cam_base at the image
+        # time, composed with the reference-time base pose seen from the image time; the occlusion filter
+        # works in the reference-time base frame, with the camera centre moved into it (a rigid motion
+        # keeps the distances and angles it compares)
+        T_cam = self.T_cam_base
+        eye = self._eye
+        if self.sync_cfg.motion_compensation and odom is not None and image_ns != t_ref:
+            poses = odom.interpolate(np.array([image_ns, t_ref], dtype=np.int64))
+            if poses is not None:
+                rel = se2_between(poses[0], poses[1])  # reference-time base pose seen from the image time
+                T_cam = T_cam @ se2_to_se3(rel)
+                eye = se2_apply(se2_inverse(rel), eye)
+                self.stats.motion_compensated += count
+        p_cam = xy[sel] @ T_cam[:3, :2].T + (z[sel, None] * T_cam[None, :3, 2] + T_cam[None, :3, 3])
+        zc = p_cam[:, 2]
+        x0, x1, y0, y1 = self._bounds
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
+        ahead = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1)  # in front, a column of the image
+        front = ahead & (yn >= y0) & (yn <= y1)
+        if count:
+            self.stats.points_ahead += int(np.count_nonzero(zc > self.paint_cfg.min_depth))
+        if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
+            k = intr.K
+            uv = np.empty((sel.size, 2))
+            uv[:, 0] = k[0, 0] * xn + k[0, 1] * yn + k[0, 2]
+            uv[:, 1] = k[1, 1] * yn + k[1, 2]
+            inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < intr.width - 0.5) & (uv[:, 1] >= -0.5) & (
+                uv[:, 1] < intr.height - 0.5)
+        else:
+            uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
+                                        min_depth=self.paint_cfg.min_depth)
+        return uv, ahead, inside & front, eye
+
     def _paint_labels(self, xy: NDArray[np.float64], z: NDArray[np.float64], hit: NDArray[np.bool_],
                       footprint: NDArray[np.float64], t_ref: int,
                       odom: OdomTrack | None, seg: Segmentation, mobility: NDArray[np.uint8],
@@ -537,44 +583,12 @@ class Painter:
             raise BagError(f"a label image is {seg.label.shape[1]}x{seg.label.shape[0]} px, the camera calibration "
                            f"says {intr.width}x{intr.height}: wrong calibration file, or images resized after "
                            f"calibrating")
-        # the camera sees the points where they were at the image's capture time: T_cam_base at the image
-        # time, composed with the reference-time base pose seen from the image time; the occlusion filter
-        # works in the reference-time base frame, with the camera centre moved into it (a rigid motion
-        # keeps the distances and angles it compares)
-        T_cam = self.T_cam_base
-        eye = self._eye
-        if self.sync_cfg.motion_compensation and odom is not None and seg.stamp_ns != t_ref:
-            poses = odom.interpolate(np.array([seg.stamp_ns, t_ref], dtype=np.int64))
-            if poses is not None:
-                rel = se2_between(poses[0], poses[1])  # reference-time base pose seen from the image time
-                T_cam = T_cam @ se2_to_se3(rel)
-                eye = se2_apply(se2_inverse(rel), eye)
-                self.stats.motion_compensated += 1
         sel = np.nonzero(hit)[0]
         self.stats.paired += 1
         self.stats.points_paired += sel.size
         if sel.size == 0:
             return None
-        xy_sel = xy[sel]
-        p_cam = xy_sel @ T_cam[:3, :2].T + (z[sel, None] * T_cam[None, :3, 2] + T_cam[None, :3, 3])
-        zc = p_cam[:, 2]
-        x0, x1, y0, y1 = self._bounds
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xn, yn = p_cam[:, 0] / zc, p_cam[:, 1] / zc
-        ahead = (zc > self.paint_cfg.min_depth) & (xn >= x0) & (xn <= x1)  # in front, a column of the image
-        front = ahead & (yn >= y0) & (yn <= y1)
-        self.stats.points_ahead += int(np.count_nonzero(zc > self.paint_cfg.min_depth))
-        if self._pinhole_no_distortion:  # the common case, without OpenCV's per-call overhead
-            k = intr.K
-            uv = np.empty((sel.size, 2))
-            uv[:, 0] = k[0, 0] * xn + k[0, 1] * yn + k[0, 2]
-            uv[:, 1] = k[1, 1] * yn + k[1, 2]
-            inside = (uv[:, 0] >= -0.5) & (uv[:, 0] < intr.width - 0.5) & (uv[:, 1] >= -0.5) & (
-                uv[:, 1] < intr.height - 0.5)
-        else:
-            uv, inside = project_points(intr.K, intr.D, p_cam, intr.width, intr.height, intr.model,
-                                        min_depth=self.paint_cfg.min_depth)
-        ok = inside & front
+        uv, ahead, ok, eye = self._project(xy, z, sel, t_ref, odom, seg.stamp_ns)
         # the occlusion filter also looks at points above or below the image (their label: the image's edge);
         # without distortion, every point ahead has finite pixel coordinates
         if self._occlusion is None:

@@ -265,9 +265,13 @@ def test_a_skipped_frame_labels_from_memory_only_the_returns_its_camera_sees():
     # the whole room, behind the robot too, as if an earlier pass had looked everywhere
     behind = first.hit.copy()
     behind[res.view.beams] = False  # the returns out of the image
+    # and someone standing behind the robot a moment ago (one frame's word, kept for a few seconds)
+    person = np.flatnonzero(behind)[-8:]
+    behind[person] = False
     xy = first.points[behind]
     for t in (5, 6):
         painter.memory.add(t * 10**8, xy, np.full(len(xy), Mobility.STATIC, np.uint8), np.full(len(xy), -1, np.int16))
+    painter.memory.add(65 * 10**7, first.points[person], np.full(8, Mobility.DYNAMIC, np.uint8), np.zeros(8, np.int16))
     skipped = replace(scan, stamp_ns=7 * 10**8)
     out = painter.paint(skipped, track, SkippedFrame(7 * 10**8)).painted
     in_view = first.hit & (first.mobility != Mobility.UNKNOWN)
@@ -275,6 +279,8 @@ def test_a_skipped_frame_labels_from_memory_only_the_returns_its_camera_sees():
     # what the camera sees takes the segmented frames' labels: the chair stays a chair
     assert np.mean(out.mobility[in_view] == first.mobility[in_view]) > 0.9
     assert np.all(out.mobility[(owner == 3) & in_view] == Mobility.SEMI_STATIC)
-    # what it does not see stays unknown, whatever the memory holds there
+    # what it does not see stays unknown, whatever the memory holds there, but for a person: the map must
+    # drop them, and the selection may have seen them once
     assert np.all(out.mobility[behind] == Mobility.UNKNOWN)
+    assert np.all(out.mobility[person] == Mobility.DYNAMIC)
     assert painter.stats.points_transferred == int(np.count_nonzero(out.mobility != Mobility.UNKNOWN))

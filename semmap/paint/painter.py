@@ -507,12 +507,15 @@ class Painter:
                 self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
         elif (isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory is not None
               and self.memory.frame_ns is not None and self.calib is not None):
-            # only the returns this frame's camera saw: a mask would have labelled no other (with every frame
-            # segmented, a return out of view is unknown, and a cell gets as many labels from skipped frames as
-            # it would have got from them segmented)
+            # structure and furniture labels only on the returns this frame's camera saw: a mask would have
+            # labelled no other (with every frame segmented a return out of view is unknown, and a cell gets as
+            # many labels from skipped frames as it would have got from them segmented). A person's label, kept
+            # for a few seconds on one frame's word, goes to every return on their cells: the selection may have
+            # seen them once, and the map must drop them
             idx = np.flatnonzero(hit)
-            idx = idx[self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]]
             found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
+            out_of_view = ~self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]
+            found &= ~out_of_view | (mob == Mobility.DYNAMIC)
             mobility[idx[found]] = mob[found]
             class_id[idx[found]] = cls[found]
             self.stats.transferred += 1

@@ -12,6 +12,7 @@ from semmap.cli.main import main
 from semmap.errors import BagError
 from semmap.io.mapserver import read_map
 from semmap.io.tum import read_tum
+from semmap.mapfolder.report import loops_line
 from semmap.pipeline import build
 from semmap.sim.scenarios import demo
 from semmap.sim.score import score_map
@@ -80,6 +81,21 @@ def test_loop_closure_in_the_fusion_worker_gives_the_map_one_process_gives(demo_
     # the loop closer's time counts as registration's
     reg = json.loads((two.out / "summary.json").read_text())["registration"]
     assert reg["seconds"] >= loops[0]["seconds_search"] + loops[0]["seconds_rematch"]
+    # and the report says what it did
+    assert f"Loop closure: {loops_line(reg)}." in (two.out / "report.md").read_text()
+
+
+def test_the_loop_closure_line_says_whether_loops_closed_and_why_not():
+    stats = {"keyframes": 40, "verified": 12, "loops": [[1, 35], [2, 36]], "max_correction_m": 0.213,
+             "max_correction_rad": 0.04, "rematch_kept": 30}
+    assert loops_line({"mode": "fused"}) is None  # loop closure off
+    assert loops_line({"loop_closure": stats}) == ("2 loops closed (12 places verified among 40 keyframes), largest "
+                                                   "correction 0.21 m and 2.3°; 30 of 39 keyframe steps re-fitted "
+                                                   "to the keyframe before")
+    assert loops_line({"loop_closure": {**stats, "loops": [], "rematch_kept": 0}}) == (
+        "no loop found (12 places verified among 40 keyframes, none matched well enough)")
+    assert loops_line({"loop_closure": {**stats, "loops": [], "verified": 0, "rematch_kept": 0}}) == (
+        "no loop found (the tour came back to no place it had passed: 40 keyframes)")
 
 
 

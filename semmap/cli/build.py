@@ -57,7 +57,7 @@ def _build(args: argparse.Namespace, tour: Path):
 
 
 def _print_summary(result) -> None:
-    from ..mapfolder.report import camera_line, consistency_line, registration_line
+    from ..mapfolder.report import camera_line, consistency_line, loops_line, registration_line
 
     s = result.summary.model_dump(mode="json")
     m, th = s["map"], s["throughput"]
@@ -70,6 +70,8 @@ def _print_summary(result) -> None:
     if s["painting"].get("frame_selection"):
         out.print(f"  camera     {camera_line(s)}")
     out.print(f"  poses      {registration_line(s['registration'])}")
+    if (loops := loops_line(s["registration"])) is not None:
+        out.print(f"  loops      {loops}")
     if s.get("consistency"):
         out.print(f"  agreement  {consistency_line(s['consistency'])}")
     out.print(f"  map        {m['size_m'][0]} m × {m['size_m'][1]} m at {m['resolution']} m: "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +25,8 @@ if TYPE_CHECKING:
     from ..grid import CleanedMap, GridLayers
     from .writer import BuildOutcome
 
-__all__ = ["camera_line", "consistency_line", "registration_line", "render_pictures", "semantic_image", "write_report"]
+__all__ = ["camera_line", "consistency_line", "loops_line", "registration_line", "render_pictures", "semantic_image",
+           "write_report"]
 
 _FREE = (255, 255, 255)
 _UNKNOWN = (205, 205, 205)
@@ -259,6 +261,7 @@ def write_report(path: Path, s: dict[str, Any], pictures: dict[str, str]) -> Non
         "## Trajectory",
         "",
         "Registration " + registration_line(s["registration"]) + ".",
+        *(["", f"Loop closure: {loops_line(s['registration'])}."] if loops_line(s["registration"]) else []),
         "",
         *([f"Agreement of the scans with the map (no ground truth needed): {consistency_line(s['consistency'])}.",
            ""] if s.get("consistency") else []),
@@ -325,6 +328,28 @@ def registration_line(r: dict[str, Any]) -> str:
     if r.get("odom_missing"):
         parts.append(f"{r['odom_missing']} scans without odometry")
     return f"{mode} ({text})" + (": " + ", ".join(parts) if parts else "")
+
+
+def loops_line(r: dict[str, Any]) -> str | None:
+    """What loop closure did, in words, from a build summary's ``registration`` (None: loop closure off)."""
+    lc = r.get("loop_closure")
+    if not lc:
+        return None
+    kept = len(lc.get("loops") or [])
+    verified = lc.get("verified", 0)
+    kf = lc.get("keyframes", 0)
+    if kept:
+        head = (f"{kept} loop{'s' if kept != 1 else ''} closed ({verified} places verified among {kf} keyframes), "
+                f"largest correction {lc.get('max_correction_m', 0.0):.2f} m and "
+                f"{math.degrees(lc.get('max_correction_rad', 0.0)):.1f}°")
+    elif verified:
+        head = f"no loop found ({verified} places verified among {kf} keyframes, none matched well enough)"
+    else:
+        head = f"no loop found (the tour came back to no place it had passed: {kf} keyframes)"
+    refit = lc.get("rematch_kept")
+    if refit:
+        head += f"; {refit} of {max(lc.get('keyframes', 1) - 1, 1)} keyframe steps re-fitted to the keyframe before"
+    return head
 
 
 def camera_line(s: dict[str, Any]) -> str:

@@ -31,9 +31,11 @@ default.
 ``mediapipe-selfie:MODEL`` or ``sam3[:FOLDER]`` (without a folder: a random-weight SAM 3 of the
 ``small`` preset, ``tests/sam3_helpers.py``, prompted with ``--prompts``). It reports build speed
 against the tour's length, not map scores (random weights label nothing a scorer could use), and runs
-only the selections asked for. ``--project-sam3`` adds the full SAM 3's model time, projected from
-the measured time per frame by torch's FLOP counts of both models (embedding plus one decoder pass
-per prompt): what the selection would cost with the real model on this CPU if time followed FLOPs.
+only the selections asked for (``--score`` scores the maps too: with a real model such as the
+MediaPipe person model, people and ghosts mean something). ``--project-sam3`` adds the full SAM 3's
+model time, projected from the measured time per frame by torch's FLOP counts of both models
+(embedding plus one decoder pass per prompt): what the selection would cost with the real model on
+this CPU if time followed FLOPs.
 """
 
 from __future__ import annotations
@@ -130,11 +132,11 @@ def sam3_factor(prompts: int) -> float:
 
 
 def speed_table(rows: list[dict[str, Any]], modes: list[str], label: str, hz: float | None,
-                factor: float | None = None) -> None:
+                factor: float | None = None, scored: bool = False) -> None:
     """Build time against the tour's length, per selection, with a model backend (``--model``)."""
+    note = "map scores below" if scored else "map scores are not reported: the weights may be random"
     print(f"Builds with {label} on {hz:g} Hz camera tours: faster than real time when the tour's length over "
-          f"the build's wall time is above 1 (map scores are not reported: the weights may be random)\n" if hz
-          else f"Builds with {label}\n")
+          f"the build's wall time is above 1 ({note})\n" if hz else f"Builds with {label}\n")
     head = ("| mode | frames segmented (share of all frames) | model busy (s) | model per frame (ms) | build wall "
             "time (s) | tour (s) | tour / build | waiting for the model |")
     if factor is not None:
@@ -199,6 +201,9 @@ def main() -> int:
                     help="with --model sam3: the text prompts, comma-separated (default: the simulator's classes)")
     ap.add_argument("--project-sam3", action="store_true",
                     help="with --model sam3: also project the full SAM 3's model time from torch's FLOP counts")
+    ap.add_argument("--score", action="store_true",
+                    help="with --model: score the maps too (a real model's, e.g. the MediaPipe person model: people "
+                         "and ghosts mean something, furniture does not); needs the 'all' mode as the reference")
     ap.add_argument("--onnx", type=Path, metavar="MODEL",
                     help="segment with this ONNX model (e.g. YOLO11n-seg) instead of the bag's label images, and "
                          "report build speed against the tour's length instead of map scores")
@@ -216,7 +221,8 @@ def main() -> int:
         ap.error("--project-sam3 needs --model sam3")
     if args.same_poses:
         args.set = {**args.set, "registration": {**args.set.get("registration", {}), "exclude_dynamic": False}}
-    if "all" not in args.modes and args.model is None:  # the reference of the map scores
+    score = args.model is None or args.score
+    if "all" not in args.modes and score:  # the reference of the map scores
         args.modes.insert(0, "all")
     worlds = [f"random:{s}" for s in args.seeds] + list(args.scenarios)
     if not worlds:
@@ -242,9 +248,9 @@ def main() -> int:
                     import shutil
 
                     shutil.rmtree(out)
-                row = build_and_score(name, Path(tour), out, mode, args.set, score=args.model is None)
+                row = build_and_score(name, Path(tour), out, mode, args.set, score=score)
                 rows.append(row)
-                if args.model is not None:
+                if not score:
                     print(f"  {name:<12} {mode:<10} frames {row['frames']:>4}  build {row['build_s']:.1f} s for a "
                           f"{row['duration_s']:.1f} s tour", file=sys.stderr)
                     continue
@@ -263,11 +269,13 @@ def main() -> int:
           + "\n")
     if args.model is not None:
         factor = sam3_factor(len(args.set["segmentation"]["prompts"])) if args.project_sam3 else None
-        speed_table(rows, args.modes, label, args.camera_hz, factor)
-        if args.json:
-            args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
-                                             "worlds": worlds, "rows": rows}, indent=2, default=float))
-        return 0
+        speed_table(rows, args.modes, label, args.camera_hz, factor, scored=score)
+        if not score:
+            if args.json:
+                args.json.write_text(json.dumps({"date": date.today().isoformat(), "machine": machine(),
+                                                 "worlds": worlds, "rows": rows}, indent=2, default=float))
+            return 0
+        print()
     print("| mode | model calls (share of all) | " + " | ".join(f"{lab}: worst change" for _, lab, *_ in SCORES)
           + " | worlds within tolerance |")
     print("|---|---|" + "---|" * len(SCORES) + "---|")

@@ -210,8 +210,10 @@ def test_a_model_time_budget_is_kept_and_a_rebuild_selects_the_same_frames_from_
     cache = tmp_path / "cache"
     build(ros1_tour.out, tmp_path / "m0", overrides={"segmentation": {
         "backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(tmp_path / "probe")}})
-    per_frame = float(np.median([float(np.load(p)["model_seconds"]) for p in (tmp_path / "probe").glob("*/*.npz")]))
-    budget = 15 * per_frame  # about fifteen frames' worth of model time, of the 40 (another run's times vary)
+    times = [float(np.load(p)["model_seconds"]) for p in (tmp_path / "probe").glob("*/*.npz")]
+    # about fifteen frames' worth of model time, of the 40, and room for a slow first frame: another run's first
+    # inference (the runtime warming up) took 15 ms where the others take under 2 ms, and alone spent the budget
+    budget = 15 * float(np.median(times)) + 2 * max(times)
     seg = {"backend": "onnx", "model": str(semantic_onnx), "cache_dir": str(cache), "max_seconds": budget}
     first = build(ros1_tour.out, tmp_path / "m1", overrides={"segmentation": seg})
     fs = first.summary.painting.frame_selection

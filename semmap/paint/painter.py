@@ -514,8 +514,9 @@ class Painter:
             # seen them once, and the map must drop them
             idx = np.flatnonzero(hit)
             found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
-            out_of_view = ~self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]
-            found &= ~out_of_view | (mob == Mobility.DYNAMIC)
+            check = np.flatnonzero(found & (mob != Mobility.DYNAMIC))
+            if check.size:
+                found[check] = self._project(xy, pts_base[:, 2], idx[check], t_ref, odom, seg.stamp_ns, count=False)[2]
             mobility[idx[found]] = mob[found]
             class_id[idx[found]] = cls[found]
             self.stats.transferred += 1

@@ -205,6 +205,33 @@ def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, 
     _assert_clean(run, out)
 
 
+@pytest.mark.parametrize("fault", ["kill the fusion worker", "SIGTERM"])
+def test_with_loop_closure_in_the_fusion_worker_a_fault_leaves_nothing(tour, tmp_path, fault):
+    # with loop closure the fusion worker runs the loop closer while the tour plays: killing it there, or
+    # stopping the build, is one error line and leaves no process, shared memory or folder behind
+    bag, cfg = tour
+    lc = tmp_path / "lc.yaml"
+    lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\n")
+    out = tmp_path / "map"
+    run = Run(["build", str(bag), "--config", str(lc), "--out", str(out)], tmp_path)
+    run.wait_for_loop()
+    run.pause(0.5)
+    if fault == "SIGTERM":
+        os.kill(run.proc.pid, signal.SIGTERM)
+    else:
+        pid = run.worker("semmap-fusion")
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+    code, err = run.finish()
+    if fault == "SIGTERM":
+        assert code == 128 + signal.SIGTERM, err
+        _one_line(err, "terminated", "SIGTERM")
+    else:
+        assert code == 6, err
+        _one_line(err, "the fusion worker was killed by SIGKILL")
+    _assert_clean(run, out)
+
+
 def test_memory_exhausted_in_fusion_is_an_error_not_a_hang(tour, tmp_path):
     """The fusion worker's address space is capped once it has started: its grid cannot be handed over."""
     import resource

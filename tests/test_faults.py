@@ -214,8 +214,7 @@ def test_with_loop_closure_in_the_fusion_worker_a_fault_leaves_nothing(tour, tmp
     lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\n")
     out = tmp_path / "map"
     run = Run(["build", str(bag), "--config", str(lc), "--out", str(out)], tmp_path)
-    run.wait_for_loop()
-    run.pause(0.5)
+    run.wait_for_loop()  # the scans stream, the loop closer takes them in
     if fault == "SIGTERM":
         os.kill(run.proc.pid, signal.SIGTERM)
     else:

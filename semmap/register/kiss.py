@@ -112,6 +112,7 @@ class KissMatcher:
         self._voxel = float(cfg.voxel_size)
         self._max_source = int(cfg.max_source_points)
         self._down: Any = voxel_down_sample
+        self._new_map: Any = get_voxel_hash_map
         self._map: Any = get_voxel_hash_map(self._kcfg)
         self._reg: Any = get_registration(self._kcfg)
         self._threshold: Any = get_threshold_estimator(self._kcfg)
@@ -146,15 +147,21 @@ class KissMatcher:
         """The current adaptive threshold (m); ICP matches within 3σ with a Geman-McClure kernel of σ."""
         return float(self._threshold.get_threshold())
 
-    def align(self, scan: PreparedScan, guess: NDArray[np.float64]) -> NDArray[np.float64]:
-        """ICP of ``scan.source`` against the local map from the SE(2) ``guess``; returns the SE(2) pose.
+    def new_map(self) -> Any:
+        """An empty map with this matcher's settings, for :meth:`align` and :meth:`update_map` to use instead of
+        the local map (a caller that keeps several)."""
+        return self._new_map(self._kcfg)
+
+    def align(self, scan: PreparedScan, guess: NDArray[np.float64], voxel_map: Any = None) -> NDArray[np.float64]:
+        """ICP of ``scan.source`` against the local map (or ``voxel_map``, from :meth:`new_map`) from the SE(2)
+        ``guess``; returns the SE(2) pose.
 
         The 6-DoF result is projected onto the floor (z, roll and pitch dropped).
         """
         sigma = self.sigma
         t = self._reg.align_points_to_map(
             points=scan.source,
-            voxel_map=self._map,
+            voxel_map=self._map if voxel_map is None else voxel_map,
             initial_guess=se2_to_se3(guess),
             max_correspondance_distance=3.0 * sigma,
             kernel=sigma,
@@ -166,11 +173,12 @@ class KissMatcher:
         dev = se3_inverse(se2_to_se3(guess)) @ se2_to_se3(result)
         self._threshold.update_model_deviation(dev)
 
-    def update_map(self, scan: PreparedScan, pose: NDArray[np.float64]) -> None:
-        """Insert the scan at the SE(2) ``pose`` and drop map points beyond ``max_range`` from it."""
+    def update_map(self, scan: PreparedScan, pose: NDArray[np.float64], voxel_map: Any = None) -> None:
+        """Insert the scan at the SE(2) ``pose`` into the local map (or ``voxel_map``) and drop map points beyond
+        ``max_range`` from it."""
         if scan.map_points.shape[0] == 0:
             return
-        self._map.update(scan.map_points, se2_to_se3(pose))
+        (self._map if voxel_map is None else voxel_map).update(scan.map_points, se2_to_se3(pose))
 
     def clear_map(self) -> None:
         """Empty the local map (the adaptive threshold is kept)."""

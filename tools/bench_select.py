@@ -116,11 +116,15 @@ def model_settings(spec: str, prompts: list[str]) -> tuple[dict[str, Any], str]:
     if backend == "sam3":
         if not path:
             sys.path.insert(0, str(REPO / "tests"))
+            import atexit
+            import shutil
+
             from sam3_helpers import save_random_model
 
-            folder = save_random_model(Path(tempfile.mkdtemp(prefix="semmap-sam3-")) / "small", "small",
-                                       vocabulary=tuple(prompts))
-            label = f"SAM 3, `small` preset, random weights, {len(prompts)} prompts"
+            tmp = Path(tempfile.mkdtemp(prefix="semmap-sam3-"))
+            atexit.register(shutil.rmtree, tmp, True)
+            folder = save_random_model(tmp / "small", "small", vocabulary=tuple(prompts))
+            label = f"SAM 3, `small` preset, random weights, {len(prompts)} prompt{'s' if len(prompts) != 1 else ''}"
         else:
             folder, label = Path(path), f"SAM 3 ({Path(path).name}), {len(prompts)} prompts"
         return {"backend": "sam3", "model": str(Path(folder).resolve()), "prompts": list(prompts)}, label

@@ -825,11 +825,11 @@ class MapperWorkers:
         _, fuse_busy, fuse_rss, fuse_cpu, final, loop_stats, loops_s = self._expect(self._fuse, "fused", last=True)
         if final is not None:  # loop closure, in the fusion worker: its time counts as registration's
             poses = final
-            stats = {**stats, "loop_closure": loop_stats}
+            from .register.registrar import registration_speed
+
             reg_busy += loops_s
-            seconds = stats["seconds"] + loops_s
-            stats["seconds"] = round(seconds, 3)
-            stats["scans_per_s"] = round(stats["scans"] / seconds, 1) if seconds > 0 else None
+            stats = {**stats, "loop_closure": loop_stats,
+                     **registration_speed(stats["scans"], stats["seconds"] + loops_s)}
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of))

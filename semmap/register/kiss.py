@@ -180,10 +180,6 @@ class KissMatcher:
             return
         (self._map if voxel_map is None else voxel_map).update(scan.map_points, se2_to_se3(pose))
 
-    def clear_map(self) -> None:
-        """Empty the local map (the adaptive threshold is kept)."""
-        self._map.clear()
-
     def map_points(self) -> NDArray[np.float64]:
         """The local map as (M, 2) points in the map frame (for inspection and plots)."""
         pc = np.asarray(self._map.point_cloud(), dtype=np.float64).reshape(-1, 3)

@@ -94,6 +94,11 @@ def _as_pose(p: ArrayLike | None, what: str) -> NDArray[np.float64] | None:
     return a
 
 
+def registration_speed(scans: int, seconds: float) -> dict[str, Any]:
+    """``seconds`` and ``scans_per_s`` of the build summary's ``registration``."""
+    return {"seconds": round(seconds, 3), "scans_per_s": round(scans / seconds, 1) if seconds > 0 else None}
+
+
 def loop_closer(cfg: RegistrationConfig) -> Any:
     """The :class:`~semmap.register.loops.LoopCloser` ``cfg.loop_closure`` asks for (None: off). It takes each
     registered scan's pose and down-sampled points and needs nothing back until the end of the tour, so it may
@@ -188,8 +193,7 @@ class Registrar:
                                                "rotation": round(float(self._max_scale[1]), 2)}
         if self._loop_stats is not None:
             out["loop_closure"] = self._loop_stats
-        out["seconds"] = round(self._seconds, 3)
-        out["scans_per_s"] = round(self._counts["scans"] / self._seconds, 1) if self._seconds > 0 else None
+        out.update(registration_speed(self._counts["scans"], self._seconds))
         return out
 
     @property

@@ -195,10 +195,17 @@ def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, 
         run.wait_for_loop()
     else:  # the map folder is being written into its hidden folder
         run.wait_for(lambda: any(tmp_path.glob(".map.*.partial/map.pgm")), timeout=120)
+        # hold the build there, so the signal lands before the folder is renamed into place however
+        # slowly this test is scheduled (on a loaded CI host the writing once ended between two polls)
+        os.kill(run.proc.pid, signal.SIGSTOP)
+        assert not out.exists() and not any(tmp_path.glob(".map.*.partial/summary.json")), \
+            "the map folder was written before the build could be held"
     if target == "main":
         os.kill(run.proc.pid, sig)
     else:  # Ctrl-C in a terminal, a closed terminal: every process of the group gets it
         os.killpg(run.proc.pid, sig)
+    if moment == "writing":
+        os.kill(run.proc.pid, signal.SIGCONT)
     code, err = run.finish()
     assert code == 128 + sig, err
     _one_line(err, "interrupted" if sig == signal.SIGINT else "terminated", signal.Signals(sig).name)

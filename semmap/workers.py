@@ -670,17 +670,29 @@ class _Refusion:
             grid.integrate(pose, painted)
 
     def fuse_at_end(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
-                    new_grid: Callable[[], Any]) -> Any:
+                    new_grid: Callable[[], Any], hand_off: Callable[[NDArray[np.float64], Any], int] | None = None
+                    ) -> Any:
         """The grid fused from the ``final`` poses (the registered ``poses`` when loop closure gave
-        none); None when scans are not deferred."""
+        none); None when scans are not deferred.
+
+        ``hand_off(poses, grid)``, once the first scan is fused (the grid's lattice is set), may hand
+        the tour's later scans to another process: it returns the scan to stop before, and the grid
+        returned holds the scans before it (see :func:`~semmap.grid.fusion.merge_continued`)."""
         if self._spool is None:
             return None
         use = final if final is not None and final.shape == poses.shape else poses
         if len(self._spool) != len(use):
             raise InternalError(f"fusion: {len(self._spool)} scans kept for {len(use)} poses")
         grid = new_grid()
-        for pose, painted in zip(use, self._spool):
+        stop = len(use)
+        if stop == 0 and hand_off is not None:
+            hand_off(use, grid)  # nothing to hand over, but the other process waits to hear it
+        for i, (pose, painted) in enumerate(zip(use, self._spool)):
+            if i == stop:
+                break
             grid.integrate(pose, painted)
+            if i == 0 and hand_off is not None:
+                stop = hand_off(use, grid)
         return grid
 
     def close(self) -> None:
@@ -752,7 +764,16 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
         if closer is not None:
             final, loop_stats = solve_loops(closer)  # the poses loop closure corrected
             loops_s += time.perf_counter() - t0
-        grid = refuse.fuse_at_end(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names)) or grid
+
+        def hand_off(use: NDArray[np.float64], head: SemanticGrid) -> int:
+            # the calling process fuses the tour's later scans meanwhile (it spooled them too), on this
+            # grid's lattice: two cores for the fusion the build waits for
+            split = tail_split(len(use))
+            out.send(("tail", use, split, head.lattice))
+            return split
+
+        grid = refuse.fuse_at_end(_pose_array(poses), final, lambda: SemanticGrid(grid_cfg, class_names),
+                                  hand_off if closer is not None else None) or grid
         busy += time.perf_counter() - t0
     finally:
         refuse.close()
@@ -761,6 +782,20 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     out.send(("endpoints", *sample.base_points))
     # the peak includes taking the layers out
     out.send(("fused", busy - loops_s, peak_rss_mb(), cpu, final, loop_stats, loops_s))
+
+
+#: share of the tour's scans the fusion worker fuses at the end of a tour with loop closure; the calling
+#: process fuses the rest, and merges (tools/bench_loops.py balances the two)
+HEAD_SHARE = 0.5
+
+
+def tail_split(n: int) -> int:
+    """The first scan the calling process fuses at the end of a tour of ``n`` scans with loop closure."""
+    from .grid.fusion import MAX_CONTINUED_SCANS
+
+    if n < 2:
+        return n
+    return min(n, max(1, round(n * HEAD_SHARE), n - MAX_CONTINUED_SCANS))
 
 
 class MapperWorkers:
@@ -787,6 +822,14 @@ class MapperWorkers:
             raise
         self._batch: list[tuple[Any, NDArray[np.float64] | None, Any]] = []
         self._batch_size = batch
+        self._grid_args = (grid_cfg, tuple(class_names))
+        # with loop closure the grid is fused at the end of the tour; this process fuses its later scans
+        # while the fusion worker fuses the earlier ones (_fusion_body), so it keeps them too
+        self._spool: Any = None
+        if reg_cfg.loop_closure.enabled:
+            from .grid.spool import ScanSpool
+
+            self._spool = ScanSpool()
         # the stateless down-sampling runs here, beside the painter, to unload the registration worker
         # (in icp mode: no Kalman filter to build, so its libraries stay out of this process)
         from .register import Registrar
@@ -810,6 +853,8 @@ class MapperWorkers:
 
     def push(self, painted: PaintedScan, odom_pose: NDArray[np.float64] | None) -> None:
         self._batch.append((painted, odom_pose, None if self._preparer is None else self._preparer.prepare(painted)))
+        if self._spool is not None:
+            self._spool.append(painted)
         if len(self._batch) >= self._batch_size:
             self._send(self._batch)
             self._batch = []
@@ -820,7 +865,25 @@ class MapperWorkers:
             self._batch = []
         self._send(None)
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses", last=True)
+        tail, tail_s = None, 0.0
+        if self._spool is not None:
+            t_wait = time.perf_counter()
+            _, use, split, lattice = self._expect(self._fuse, "tail")
+            t0 = time.perf_counter()
+            tail = self._fuse_tail(use, split, lattice)
+            tail_s = time.perf_counter() - t0
+            log.debug("fusion at the end: %.3f s waiting for the corrected poses, scans %d-%d fused here in "
+                      "%.3f s", t0 - t_wait, split, len(use), tail_s)
+        t_wait = time.perf_counter()
         _, layers = self._expect(self._fuse, "large")
+        if tail is not None:
+            from .grid.fusion import merge_continued
+
+            t0 = time.perf_counter()
+            layers = merge_continued(layers, tail)
+            tail_s += time.perf_counter() - t0
+            log.debug("fusion at the end: %.3f s waiting for the fusion worker's half, merged in %.3f s",
+                      t0 - t_wait, time.perf_counter() - t0)
         _, xy, scan_of = self._expect(self._fuse, "endpoints")
         _, fuse_busy, fuse_rss, fuse_cpu, final, loop_stats, loops_s = self._expect(self._fuse, "fused", last=True)
         if final is not None:  # loop closure, in the fusion worker: its time counts as registration's
@@ -830,9 +893,24 @@ class MapperWorkers:
             reg_busy += loops_s
             stats = {**stats, "loop_closure": loop_stats,
                      **registration_speed(stats["scans"], stats["seconds"] + loops_s)}
-        return MapperResult(poses, layers, stats, reg_busy, fuse_busy,
+        return MapperResult(poses, layers, stats, reg_busy, fuse_busy + tail_s,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of))
+
+    def _fuse_tail(self, poses: NDArray[np.float64], split: int, lattice: tuple[float, float] | None) -> Any:
+        """The grid of the scans from ``split`` on, continuing the fusion worker's (None: no scans left)."""
+        from .grid import SemanticGrid
+
+        if lattice is None or split >= len(poses):
+            return None
+        if len(poses) != len(self._spool):
+            raise InternalError(f"fusion: {len(self._spool)} scans kept here for {len(poses)} poses")
+        tail = SemanticGrid.continuing(*self._grid_args, lattice, split)
+        for i, (pose, painted) in enumerate(zip(poses[split:], self._spool.iter_from(split))):
+            tail.integrate(pose, painted)
+            if i % 64 == 63:
+                self._group.check()  # a worker that died meanwhile is reported now, not after this half
+        return tail
 
     def _expect(self, w: _Worker, tag: str, last: bool = False) -> Any:
         msg = self._group.recv(w)
@@ -842,4 +920,8 @@ class MapperWorkers:
         return msg
 
     def close(self) -> None:
-        self._group.close()
+        try:
+            self._group.close()
+        finally:
+            if self._spool is not None:
+                self._spool.close()

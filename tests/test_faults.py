@@ -238,6 +238,41 @@ def test_with_loop_closure_in_the_fusion_worker_a_fault_leaves_nothing(tour, tmp
     _assert_clean(run, out)
 
 
+@pytest.mark.parametrize("fault", ["kill the fusion worker", "SIGTERM"])
+def test_with_loop_closure_a_fault_while_the_tour_is_fused_at_the_end_leaves_nothing(tour, tmp_path, fault):
+    # at the end of a tour with loop closure the fusion worker and this process each fuse part of the tour
+    # from the corrected poses (the registration worker has ended): a fault there is one error line too.
+    # A 1 cm grid makes that fusion last a second or two (during the tour the scans are only spooled)
+    bag, cfg = tour
+    lc = tmp_path / "lc.yaml"
+    lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\ngrid:\n  resolution: 0.01\n")
+    out = tmp_path / "map"
+    run = Run(["build", str(bag), "--config", str(lc), "--out", str(out)], tmp_path)
+    run.wait_for_loop()
+    fusion = run.worker("semmap-fusion")
+    assert fusion is not None
+    run.wait_for(lambda: run.worker("semmap-register") is None, timeout=120)  # the tour's end
+    # hold both there, however slowly this test is scheduled
+    os.kill(run.proc.pid, signal.SIGSTOP)
+    os.kill(fusion, signal.SIGSTOP)
+    assert _running(fusion) and not out.exists(), "the fusion worker had finished before it could be held"
+    if fault == "SIGTERM":
+        os.kill(run.proc.pid, signal.SIGTERM)
+    else:
+        os.kill(fusion, signal.SIGKILL)
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(fusion, signal.SIGCONT)
+    os.kill(run.proc.pid, signal.SIGCONT)
+    code, err = run.finish()
+    if fault == "SIGTERM":
+        assert code == 128 + signal.SIGTERM, err
+        _one_line(err, "terminated", "SIGTERM")
+    else:
+        assert code == 6, err
+        _one_line(err, "the fusion worker was killed by SIGKILL")
+    _assert_clean(run, out)
+
+
 def test_memory_exhausted_in_fusion_is_an_error_not_a_hang(tour, tmp_path):
     """The fusion worker's address space is capped once it has started: its grid cannot be handed over."""
     import resource

@@ -813,3 +813,50 @@ def test_an_unlabelled_cell_is_named_by_its_own_piece_before_a_nearer_object():
     assert len(tables) == 1 and tables[0].n_cells == 8  # its two legs only
     front = max((o for o in objs if o.class_name == "couch"), key=lambda o: o.n_cells)
     assert front.n_cells >= 50 and max(front.size) == pytest.approx(2.5, abs=0.06)
+
+
+# ---------------------------------------------------------------------------------------
+# one tour fused by two grids (loop closure's re-fusion, split between two processes)
+
+
+@pytest.mark.parametrize("clamp", [None, 0.9])
+def test_a_tour_fused_in_two_halves_and_merged_is_the_grid_fused_whole(clamp):
+    """The later scans fused by a grid that continues the earlier ones' give, merged, exactly the
+    layers of one grid that fused every scan in order: log-odds clamped at every update (tight clamps
+    too), counts, class layers first seen late, the objects' sightings, and a window grown both ways."""
+    from semmap.grid.fusion import merge_continued
+
+    world = (World().wall((-12, -1.5), (22, -1.5)).wall((-12, 1.5), (22, 1.5))
+             .wall((20.5, 1.5), (20.5, 14)).wall((23.5, -1.5), (23.5, 14)))
+    for x, inst in ((3.0, 1), (8.0, 2)):
+        for dx in (-0.2, 0.2):
+            for dy in (-0.2, 0.2):
+                world.leg((x + dx, 1.0 + dy), 0.0175, 2, SEMI, inst)
+    _person(world, (5.0, -0.8))
+    world.leg((-9.0, 0.5), 0.3, 4, SEMI, 7)  # a "bed" at the far west: only the later scans see it
+    cfg = GridConfig(max_range=8.0, tile_margin=5.0, **({} if clamp is None else {"l_max": clamp, "l_min": -clamp}))
+    poses = ([(x, 0.0, 0.0) for x in np.arange(0.0, 22.0, 0.4)]
+             + [(22.0, y, math.pi / 2) for y in np.arange(0, 12, 0.4)]
+             + [(22.0, y, -math.pi / 2) for y in np.arange(12, 0, -0.4)]
+             + [(x, 0.0, math.pi) for x in np.arange(22.0, -11.0, -0.4)])
+    scans = [world.scan(p, noise=0.01, rng=np.random.default_rng(i)) for i, p in enumerate(poses)]
+    whole = SemanticGrid(cfg, NAMES)
+    for p, sc in zip(poses, scans):
+        whole.integrate(np.asarray(p, float), sc)
+    ref = whole.layers()
+    assert ref.log_odds.max() == pytest.approx(cfg.l_max, abs=1e-3)  # the clamps were reached
+    for split in (1, len(poses) // 3, len(poses) - 1):
+        head = SemanticGrid(cfg, NAMES)
+        for p, sc in zip(poses[:split], scans[:split]):
+            head.integrate(np.asarray(p, float), sc)
+        assert head.lattice is not None
+        tail = SemanticGrid.continuing(cfg, NAMES, head.lattice, split)
+        for p, sc in zip(poses[split:], scans[split:]):
+            tail.integrate(np.asarray(p, float), sc)
+        got = merge_continued(head.layers(), tail)
+        assert got.spec == ref.spec and got.n_scans == ref.n_scans and got.class_ids == ref.class_ids
+        for name in ("log_odds", "hits", "free", "mobility", "class_counts", "sightings"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=f"{name}, split {split}")
+        assert got.grid_tiles == ref.grid_tiles
+    with pytest.raises(ValueError, match="merge_continued"):
+        tail.layers()

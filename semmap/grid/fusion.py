@@ -57,6 +57,7 @@ __all__ = [
     "SemanticGrid",
     "check_grid_memory",
     "estimate_grid_memory",
+    "merge_continued",
 ]
 
 log = logging.getLogger(__name__)
@@ -158,10 +159,13 @@ _WINDOW_PAD_M = 2.0
 class _Tile:
     """One square tile of the grid: its cells' layers (class layers only for the classes hit in it)."""
 
-    __slots__ = ("cls", "free", "hits", "lo", "mob")
+    __slots__ = ("cls", "free", "hi", "hits", "lo", "mob")
 
-    def __init__(self, side: int, q_zero: int) -> None:
-        self.lo = np.full((side, side), q_zero, np.uint16)
+    def __init__(self, side: int, q_start: int, q_high: int | None = None) -> None:
+        self.lo = np.full((side, side), q_start, np.uint16)
+        # a grid that continues another's (:meth:`SemanticGrid.continuing`): ``lo`` and ``hi`` are the
+        # cell's log-odds after this grid's scans had it started at l_min and at l_max
+        self.hi = None if q_high is None else np.full((side, side), q_high, np.uint16)
         self.hits = np.zeros((side, side), np.uint16)
         self.free = np.zeros((side, side), np.uint16)
         self.mob = np.zeros((N_MOBILITY, side, side), np.uint16)
@@ -170,7 +174,7 @@ class _Tile:
     @property
     def nbytes(self) -> int:
         return int(self.lo.nbytes + self.hits.nbytes + self.free.nbytes + self.mob.nbytes
-                   + sum(a.nbytes for a in self.cls.values()))
+                   + (0 if self.hi is None else self.hi.nbytes) + sum(a.nbytes for a in self.cls.values()))
 
 
 class SemanticGrid:
@@ -207,6 +211,10 @@ class SemanticGrid:
         # below and left of its box, so that its cells are those a window around it would have
         self._gx = 0.0
         self._gy = 0.0
+        self._lattice_set = False
+        #: a grid that continues another's (:meth:`continuing`): the scans before its first
+        self.first_scan = 0
+        self._continues = False
         self._tile_bytes = 0
         self._cls_ids: list[int] = []
         self._layer_of = np.full(len(self.class_names), -1, np.intp)
@@ -217,6 +225,30 @@ class SemanticGrid:
         self._sightings_n = 0
         # per-scan scratch rasters, kept between scans (fresh pages for each scan cost page faults)
         self._scratch: list[NDArray[Any]] = [np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, np.uint16)]
+
+    @classmethod
+    def continuing(cls, cfg: GridConfig | None, class_names: Sequence[str], lattice: tuple[float, float],
+                   first_scan: int) -> SemanticGrid:
+        """A grid for the later scans of a tour, from ``first_scan`` on, while another grid on the same
+        ``lattice`` (its :attr:`lattice`) fuses the earlier ones: two processes fuse one tour, and
+        :func:`merge_continued` gives exactly the layers one grid fusing every scan in order would.
+
+        Log-odds are clamped at every update, so the later scans' effect on a cell depends on where the
+        earlier ones left it. It is a clamped shift ``clip(l + s, lo, hi)`` (clamped shifts compose into
+        one), so this grid keeps, per cell, what its scans make of l_min and of l_max; ``s`` is its
+        hits times ``l_occ`` less its free crossings times ``l_free``.
+        """
+        grid = cls(cfg, class_names)
+        grid._gx, grid._gy = float(lattice[0]), float(lattice[1])
+        grid._lattice_set = True
+        grid._continues = True
+        grid.first_scan = grid.n_scans = int(first_scan)
+        return grid
+
+    @property
+    def lattice(self) -> tuple[float, float] | None:
+        """The origin (m) of the lattice the tiles lie on, set by the first scan; None before it."""
+        return (self._gx, self._gy) if self._lattice_set else None
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -276,7 +308,7 @@ class SemanticGrid:
                               f"than the {_size(self._budget)} it may use): the robot's pose jumped (check the "
                               f"odometry and registration), or the building is larger than a grid.resolution of "
                               f"{res:g} m allows")
-        tile = self._tiles[(tr, tc)] = _Tile(t, self._q_zero)
+        tile = self._tiles[(tr, tc)] = (_Tile(t, 0, self._q_max) if self._continues else _Tile(t, self._q_zero))
         self._tile_bytes += tile.nbytes
         log.debug("grid tile (%d, %d): %d tiles", tr, tc, len(self._tiles))
         return tile
@@ -362,9 +394,10 @@ class SemanticGrid:
         if hx.size:
             x0, x1 = min(x0, hx.min()), max(x1, hx.max())
             y0, y1 = min(y0, hy.min()), max(y1, hy.max())
-        if not self._tiles:
+        if not self._lattice_set:
             m = float(cfg.tile_margin)
             self._gx, self._gy = float(np.floor((x0 - m) / res) * res), float(np.floor((y0 - m) / res) * res)
+            self._lattice_set = True
         gx, gy = self._gx, self._gy
         # the scan's box in cells of the lattice
         c0, r0 = math.floor((x0 - gx) / res), math.floor((y0 - gy) / res)
@@ -430,7 +463,11 @@ class SemanticGrid:
                 tile = self._tile(tr, tc, where)
                 win = (slice(a0 - tr * t, a1 - tr * t), slice(b0 - tc * t, b1 - tc * t))
                 lo = tile.lo[win]
-                cv2.subtract(lo, step[a0 - r0:a1 - r0, b0 - c0:b1 - c0], dst=lo)  # saturates at 0, which is l_min
+                step_win = step[a0 - r0:a1 - r0, b0 - c0:b1 - c0]
+                cv2.subtract(lo, step_win, dst=lo)  # saturates at 0, which is l_min
+                if tile.hi is not None:
+                    hi = tile.hi[win]
+                    cv2.subtract(hi, step_win, dst=hi)
                 fr = tile.free[win]
                 if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
                     np.add(fr, sub, out=fr, casting="unsafe")
@@ -463,6 +500,9 @@ class SemanticGrid:
                 lu = local[here & first]
                 lo_flat = tile.lo.reshape(-1)
                 lo_flat[lu] = np.minimum(lo_flat[lu].astype(np.int32) + self._q_occ, self._q_max)
+                if tile.hi is not None:
+                    hi_flat = tile.hi.reshape(-1)
+                    hi_flat[lu] = np.minimum(hi_flat[lu].astype(np.int32) + self._q_occ, self._q_max)
                 _bump(tile.hits.reshape(-1), lu)
                 hc_code, hl = code[here], local[here]
                 is_mob = hc_code < N_MOBILITY
@@ -489,6 +529,8 @@ class SemanticGrid:
         spec = self.spec
         if spec is None:
             raise ValueError("the grid is empty: integrate a scan first")
+        if self._continues:
+            raise ValueError("a grid that continues another's has no layers of its own: merge_continued")
         t, p = self.tile_cells, self._pad
         tr0, _, tc0, _ = self._tile_span()
         h, w = spec.height, spec.width
@@ -530,6 +572,94 @@ class SemanticGrid:
         out[:, 2] -= row0
         out[:, 3] -= col0
         return out
+
+
+#: scans a grid that continues another's may fuse: its hit and free counts give the log-odds shift, and
+#: must not saturate
+MAX_CONTINUED_SCANS = _U16_MAX
+
+
+def merge_continued(head: GridLayers, tail: SemanticGrid) -> GridLayers:
+    """The layers of one grid that fused ``head``'s scans and then ``tail``'s, in order.
+
+    ``head`` is a grid's :meth:`~SemanticGrid.layers` after the tour's first scans; ``tail`` a grid
+    :meth:`SemanticGrid.continuing` it on the same lattice from the next scan. Bit for bit the layers
+    of a single grid, but for the memory figures (``grid_bytes``: both grids').
+    """
+    if not tail._continues:
+        raise ValueError("tail must be a grid made by SemanticGrid.continuing")
+    if tail.first_scan != head.n_scans:
+        raise ValueError(f"tail starts at scan {tail.first_scan}, head holds {head.n_scans}")
+    if tail.n_scans - tail.first_scan > MAX_CONTINUED_SCANS:
+        raise ValueError(f"a continuing grid fuses at most {MAX_CONTINUED_SCANS} scans")
+    if not tail._tiles:
+        return head
+    res, t, p = tail.res, tail.tile_cells, tail._pad
+    hs = head.spec
+    # the head's window in cells of the lattice, and its tiles' span (the window less its pad)
+    hc0 = round((hs.origin_x - tail._gx) / res)
+    hr0 = round((hs.origin_y - tail._gy) / res)
+    if (hc0 + p) % t or (hr0 + p) % t or hs.resolution != res:
+        raise ValueError("head and tail are not on one lattice")
+    htr0, htc0 = (hr0 + p) // t, (hc0 + p) // t
+    htr1, htc1 = htr0 + (hs.height - 2 * p) // t, htc0 + (hs.width - 2 * p) // t
+    ttr0, ttr1, ttc0, ttc1 = tail._tile_span()
+    tr0, tr1, tc0, tc1 = min(htr0, ttr0), max(htr1, ttr1), min(htc0, ttc0), max(htc1, ttc1)
+    spec = GridSpec(res, tail._gx + (tc0 * t - p) * res, tail._gy + (tr0 * t - p) * res,
+                    (tc1 - tc0) * t + 2 * p, (tr1 - tr0) * t + 2 * p)
+    h, w = spec.height, spec.width
+    mr0, mc0 = tr0 * t - p, tc0 * t - p  # the window's first cell on the lattice
+    hwin = (slice(hr0 - mr0, hr0 - mr0 + hs.height), slice(hc0 - mc0, hc0 - mc0 + hs.width))
+
+    q_zero = tail._q_zero
+    log_odds = np.zeros((h, w), np.float32)
+    hits = np.zeros((h, w), np.uint16)
+    free = np.zeros((h, w), np.uint16)
+    mob = np.zeros((N_MOBILITY, h, w), np.uint16)
+    log_odds[hwin], hits[hwin], free[hwin] = head.log_odds, head.hits, head.free
+    mob[(slice(None), *hwin)] = head.mobility
+    class_ids = list(head.class_ids)
+    for c in tail._cls_ids:
+        if c not in class_ids:
+            class_ids.append(c)
+    cls = np.zeros((len(class_ids), h, w), np.uint16)
+    cls[(slice(0, len(head.class_ids)), *hwin)] = head.class_counts
+    layer_of = [class_ids.index(c) for c in tail._cls_ids]
+    for (tr, tc), tile in tail._tiles.items():
+        win = (slice(tr * t - mr0, (tr + 1) * t - mr0), slice(tc * t - mc0, (tc + 1) * t - mc0))
+        assert tile.hi is not None
+        # the head's log-odds in steps, shifted by the tail's evidence and clamped as the tail's updates were
+        q = np.rint(log_odds[win] * (1.0 / LOG_ODDS_STEP)).astype(np.int32)
+        q += q_zero + tile.hits.astype(np.int32) * tail._q_occ - tile.free.astype(np.int32) * tail._q_free
+        np.clip(q, tile.lo, tile.hi, out=q)
+        np.multiply(q - q_zero, LOG_ODDS_STEP, out=log_odds[win], casting="unsafe")
+        # counts: saturating sums, as the one grid's saturating increments
+        cv2.add(hits[win], tile.hits, dst=hits[win])
+        cv2.add(free[win], tile.free, dst=free[win])
+        for k in range(N_MOBILITY):
+            cv2.add(mob[(k, *win)], tile.mob[k], dst=mob[(k, *win)])
+        for k, arr in tile.cls.items():
+            cv2.add(cls[(layer_of[k], *win)], arr, dst=cls[(layer_of[k], *win)])
+    sightings = [head.sightings.astype(np.int32, copy=True)] if len(head.sightings) else []
+    if sightings:
+        sightings[0][:, 2] += hr0 - mr0
+        sightings[0][:, 3] += hc0 - mc0
+    if tail._sightings:
+        sightings.append(tail._window_sightings(mr0, mc0))
+    observed = np.zeros((tr1 - tr0, tc1 - tc0), bool)
+    seen = (head.hits > 0) | (head.free > 0)
+    for i in range(htr1 - htr0):  # the head's tiles: those it observed a cell of
+        for j in range(htc1 - htc0):
+            observed[htr0 - tr0 + i, htc0 - tc0 + j] = seen[p + i * t:p + (i + 1) * t, p + j * t:p + (j + 1) * t].any()
+    for tr, tc in tail._tiles:
+        observed[tr - tr0, tc - tc0] = True
+
+    return GridLayers(
+        spec=spec, log_odds=_frozen(log_odds), hits=_frozen(hits), free=_frozen(free), mobility=_frozen(mob),
+        class_counts=_frozen(cls), class_ids=tuple(class_ids), class_names=head.class_names, n_scans=tail.n_scans,
+        sightings=_frozen(np.concatenate(sightings) if sightings else np.zeros((0, 4), np.int32)),
+        grid_bytes=head.grid_bytes + tail.nbytes, grid_tiles=int(observed.sum()),
+    )
 
 
 def _bump(flat: NDArray[np.uint16], idx: NDArray[np.intp]) -> None:

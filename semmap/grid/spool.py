@@ -8,6 +8,7 @@ robot that is a few micrometres), labels as they are.
 from __future__ import annotations
 
 import tempfile
+from array import array
 from collections.abc import Iterator
 from typing import BinaryIO
 
@@ -26,6 +27,7 @@ class ScanSpool:
     def __init__(self) -> None:
         self._file: BinaryIO = tempfile.TemporaryFile(prefix="semmap-spool-")  # noqa: SIM115 (closed in close())
         self._count = 0
+        self._offsets = array("q")  # where each scan's record starts
         self._class_names: tuple[str, ...] = ()
         self._frame_id = ""
         self.nbytes = 0
@@ -43,6 +45,7 @@ class ScanSpool:
                  np.ascontiguousarray(scan.class_id, np.int16).tobytes()]
         if inst is not None:
             parts.append(np.ascontiguousarray(inst, np.int32).tobytes())
+        self._offsets.append(self.nbytes)
         for p in parts:
             self._file.write(p)
             self.nbytes += len(p)
@@ -50,10 +53,16 @@ class ScanSpool:
         self._count += 1
 
     def __iter__(self) -> Iterator[PaintedScan]:
+        return self.iter_from(0)
+
+    def iter_from(self, start: int) -> Iterator[PaintedScan]:
+        """The scans from the ``start``-th on, in order."""
         f = self._file
         f.flush()
-        f.seek(0)
-        for _ in range(self._count):
+        if start >= self._count:
+            return
+        f.seek(self._offsets[max(start, 0)])
+        for _ in range(max(start, 0), self._count):
             head = np.frombuffer(f.read(_HEAD.itemsize), _HEAD)[0]
             n = int(head["n"])
             pts = np.frombuffer(f.read(8 * n), np.float32).reshape(n, 2).astype(np.float64)

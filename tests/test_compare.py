@@ -663,3 +663,67 @@ def test_two_sessions_whose_folders_share_a_name_are_named_by_their_parents():
     # names that differ stay as they are
     r = diff_sessions(Room().session(T_A, "x/monday"), Room().session(T_B, "x/tuesday"), alignment=al)
     assert (r.a.name, r.b.name) == ("monday", "tuesday")
+
+
+def test_a_couch_back_where_the_other_session_saw_a_walker_is_added():
+    # B: a new couch whose back (a 1.2 m face no camera labelled) stands across the path A's walker
+    # took. A's people say nothing of what B saw there: the back is a new obstacle. A person B's own
+    # cleaning left in along B's own people evidence stays no change
+    a, b = Room(), Room()
+    b.walls.append((3.0, 4.0, 4.2, 4.0))
+    # A's walker, across where the back is now: cleaning dropped their hits (people's evidence, no obstacle)
+    a.dropped += [(x, y) for x in np.arange(3.4, 3.81, 0.05) for y in np.arange(2.5, 5.6, 0.05)]
+    b.walls.append((7.0, 2.0, 7.9, 2.0))  # B kept a trail of its own walker, on its own people evidence
+    b.people += [(x, 2.05) for x in np.arange(7.0, 7.95, 0.15)]
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1, r.counts()
+    added = _mask_world(r, 1)
+    back = added[np.abs(added[:, 1] - 4.0) < 0.08]
+    assert back.shape[0] >= 0.9 * 1.2 / RES
+    assert np.all(np.hypot(added[:, 0] - 7.45, added[:, 1] - 2.0) > 0.6)
+
+
+def test_a_chair_the_build_grouped_with_a_table_that_moved_away_from_it_is_a_move():
+    # A: a chair tucked at a long table's end, never labelled on its own; the build grouped its legs
+    # with the table. B: the table where it was, the chair (labelled) 1.5 m away. The chair moved; the
+    # table, most of whose cells are where they were, did not
+    from dataclasses import replace
+
+    a, b = Room(), Room()
+    for room in (a, b):  # a long table: six legs
+        room.objects.append(("dining table", (3.8, 3.0), (1.6, 0.8), 0.0))
+        room.loose_legs += [(3.8, 2.63), (3.8, 3.37)]
+    chair_legs = [(4.78 + dx, 3.0 + dy) for dx in (-0.19, 0.19) for dy in (-0.19, 0.19)]
+    a.loose_legs += chair_legs
+    b.objects.append(("chair", (4.7, 4.5), (0.45, 0.45), 0.0))
+    sa, sb = a.session(T_A, "A"), b.session(T_B, "B")
+    index = np.where(sa.semi_static, 0, -1).astype(np.int32)  # every movable cell of A: the table's
+    sa = replace(sa, object_index=index)
+    t_a_b = se2_apply(se2_inverse(T_A), T_B[None, :2])[0]
+    r = diff_sessions(sa, sb, alignment=Alignment(np.array([t_a_b[0], t_a_b[1], T_B[2] - T_A[2]])))
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert mv.displacement_m == pytest.approx(math.hypot(0.08, 1.5), abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (4.7, 4.5)) < 0.05
+
+
+def test_a_couch_seen_as_its_labelled_side_and_an_unlabelled_front_is_measured_by_both():
+    # A saw a couch: its east side (labelled couch) and its north face (no camera label, a plain
+    # obstacle); its inside unobserved. B saw the couch whole after it moved (1.2, 0.8) m. The side
+    # alone slides along B's couch (0.83 m measured before, 0.61 m off); with the unlabelled face that
+    # moved with it the fit is unique (the faces drawn on a 5 cm grid: within 8 cm)
+    a, b = Room(), Room()
+    a.faces.append(("couch", (2.95, 3.0, 2.95, 4.75)))
+    a.walls.append((2.0, 4.75, 2.9, 4.75))
+    a.unseen.append((2.0, 3.0, 2.9, 4.7))
+    x0, y0, x1, y1 = 3.2, 3.8, 4.15, 5.55
+    b.faces += [("couch", (x0, y0, x1, y0)), ("couch", (x1, y0, x1, y1)), ("couch", (x1, y1, x0, y1)),
+                ("couch", (x0, y1, x0, y0))]
+    b.unseen.append((x0 + 0.05, y0 + 0.05, x1 - 0.05, y1 - 0.05))
+    r = _diff(a, b)
+    mv = r.of_type("object_moved")
+    assert len(mv) == 1, r.counts()
+    assert mv[0].displacement_m == pytest.approx(math.hypot(1.2, 0.8), abs=0.08)
+    assert np.linalg.norm(_world(mv[0].to_xy) - ((x0 + x1) / 2, (y0 + y1) / 2)) < 0.05

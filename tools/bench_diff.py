@@ -240,16 +240,18 @@ def main() -> int:
                   f"{al['residual_m'] * 100:.1f} | {al['inlier_fraction']:.0%} | {al['overlap']:.0%} | {counts} |")
     # a shared virtual machine's time varies from run to run: the median of several, and the range
     runs = [big_maps() for _ in range(args.big_runs)]
-    times = sorted(r[0] for r in runs)
-    seconds, big = float(np.median(times)), runs[0][1]
-    align_s = float(np.median([r[1]["alignment"]["seconds"] for r in runs]))
-    print(f"\nTwo 100 m x 100 m maps at 5 cm ({big['cells'] / 1e6:.0f} M cells each), B turned 37° and shifted: "
-          f"diff in {seconds:.2f} s (median of {len(times)}, {times[0]:.2f}-{times[-1]:.2f} s; alignment "
-          f"{align_s:.2f} s); alignment error {big['alignment_error_m'] * 100:.1f} cm, "
-          f"{big['alignment_error_deg']:.2f}°")
+    big_json: dict | None = None
+    if runs:  # --big-runs 0: the pairs only
+        times = sorted(r[0] for r in runs)
+        seconds, big = float(np.median(times)), runs[0][1]
+        align_s = float(np.median([r[1]["alignment"]["seconds"] for r in runs]))
+        print(f"\nTwo 100 m x 100 m maps at 5 cm ({big['cells'] / 1e6:.0f} M cells each), B turned 37° and shifted: "
+              f"diff in {seconds:.2f} s (median of {len(times)}, {times[0]:.2f}-{times[-1]:.2f} s; alignment "
+              f"{align_s:.2f} s); alignment error {big['alignment_error_m'] * 100:.1f} cm, "
+              f"{big['alignment_error_deg']:.2f}°")
+        big_json = {"seconds": seconds, "runs": times, **big}
     if args.json:
-        args.json.write_text(json.dumps({"pairs": results, "real": real,
-                                         "big": {"seconds": seconds, "runs": times, **big}}, indent=2, default=float))
+        args.json.write_text(json.dumps({"pairs": results, "real": real, "big": big_json}, indent=2, default=float))
     return 0
 
 

@@ -791,6 +791,34 @@ def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
     return m > 0
 
 
+def _with_touching(o: _Obj, loose: NDArray[np.bool_], spec: GridSpec, size_of: Any) -> NDArray[np.intp]:
+    """The object's cells and the pieces of ``loose`` (changed cells no camera labelled) that touch them
+    (within three cells) while the whole stays within 1.3 times the object's length (its class's typical
+    one, or what its session saw)."""
+    if o.cells.shape[0] == 0 or not loose.any():
+        return o.cells
+    res = spec.resolution
+    length = max(*o.src.size, size_of(o.src.class_name) if o.src.class_name else 0.0)
+    m = int(math.ceil(1.3 * length / res)) + 3
+    r0, c0 = max(0, int(o.cells[:, 0].min()) - m), max(0, int(o.cells[:, 1].min()) - m)
+    r1 = min(spec.height, int(o.cells[:, 0].max()) + m + 1)
+    c1 = min(spec.width, int(o.cells[:, 1].max()) + m + 1)
+    win = loose[r0:r1, c0:c1]
+    if not win.any():
+        return o.cells
+    lab, _ = ndimage.label(win, structure=np.ones((3, 3), bool))
+    own = np.zeros(win.shape, bool)
+    own[o.cells[:, 0] - r0, o.cells[:, 1] - c0] = True
+    touching = np.unique(lab[_dilate(own, 3.0) & (lab > 0)])
+    out = o.cells
+    for k in touching.tolist():
+        rr, cc = np.nonzero(lab == k)
+        cand = np.unique(np.concatenate([out, np.stack([rr + r0, cc + c0], axis=1)]), axis=0)
+        if _piece_box(cand, spec)[1] <= 1.3 * length + 2 * res:
+            out = cand
+    return out
+
+
 def _elongated(o: _Obj) -> bool:
     """A turn is measurable: the object is clearly longer than wide, and more than a few cells."""
     length, width = sorted(o.src.size, reverse=True)
@@ -1022,10 +1050,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # where either session saw people, an obstacle may be a person the other's cleaning left in (a
     # person standing out of the camera's view has no label of its own): no change. Only for pieces
     # a person could be: a cabinet face a metre long with one person-labelled cell beside it is new
-    on_people = _dilate(lo.dyn_a | lo.dyn_b, tol)
+    # A piece as long as a person or longer is a trail of a person the session's own cleaning left in
+    # when it lies on that session's people evidence: the other session's walkers, who crossed the place
+    # where this session now sees a couch's back, say nothing about what this session saw
     added_raw, removed_raw = lo.occ_b & lo.free_a & ~near_a, lo.occ_a & lo.free_b & ~near_b
-    added = _void_people(added_raw, people & ~semi_b, on_people, st, res)
-    removed = _void_people(removed_raw, people & ~semi_a, on_people, st, res)
+    added = _void_people(added_raw, people & ~semi_b, _dilate(lo.dyn_b, tol), st, res)
+    removed = _void_people(removed_raw, people & ~semi_a, _dilate(lo.dyn_a, tol), st, res)
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0,
@@ -1091,8 +1121,21 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # legs of its own stood)
         # (pieces by people count, the people's own cells left out: a leg a person stood beside is no
         # less a leg, and the fit needs three legs on three legs, which two people's legs do not make)
-        sides = ((only_a, gone, added_raw & off_semi_b & ~lo.dyn_b, True, obst_b & off_semi_b),
-                 (only_b, new, removed_raw & off_semi_a & ~lo.dyn_a, False, obst_a & off_semi_a))
+        # (and the cells of an object that stayed which the other session saw free: a chair tucked at a
+        # table's end, which the build grouped with the table, pulled away from it)
+        def remnant(objs: list[_Obj], changed_objs: set[int], changed: NDArray[np.bool_]) -> NDArray[np.bool_]:
+            out = np.zeros(spec.shape, bool)
+            for o in objs:
+                if id(o) not in changed_objs and o.cells.size:
+                    out[o.cells[:, 0], o.cells[:, 1]] = True
+            return out & changed
+
+        # (objects paired as slid count: a chair pulled away leaves its object, table and chair, looking
+        # pushed by less than its size)
+        rem_a = remnant(objs_a, gone_ids, removed & ~still_a)
+        rem_b = remnant(objs_b, new_ids, added & ~still_b)
+        sides = ((only_a, gone, ((added_raw & off_semi_b) | rem_b) & ~lo.dyn_b, True, obst_b & off_semi_b),
+                 (only_b, new, ((removed_raw & off_semi_a) | rem_a) & ~lo.dyn_a, False, obst_a & off_semi_a))
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
@@ -1153,9 +1196,16 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             own = other_free[r, c] & zone[r, c]
             mask[r[own], c[own]] = value
 
+        # what no camera labelled of a moved object changed with it: a couch's face the build left
+        # unflagged, seen in one session only beside its flagged side. It joins the fit (a flagged face
+        # alone slides along the other session's couch) when it touches the object and the two stay
+        # within the object's length
+        loose_a, loose_b = removed & ~semi_a & ~lo.dyn_a, added & ~semi_b & ~lo.dyn_b
         for oa, ob in moved:
             elongated = _elongated(oa) and _elongated(ob)
-            src_xy, dst_xy = _cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec)
+            cells_a = _with_touching(oa, loose_a, spec, sizes.size_of)
+            cells_b = _with_touching(ob, loose_b, spec, sizes.size_of)
+            src_xy, dst_xy = _cells_xy(cells_a, spec), _cells_xy(cells_b, spec)
             # candidate turns: none and the turn between the two boxes, each also by quarter and half
             # turns (a box looks alike turned half way round, a square one a quarter)
             box = _box_turn(oa.yaw, ob.yaw)
@@ -1163,8 +1213,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, furniture_a, furniture_b)
             # cells with an obstacle of the other session where they are (a neighbour that did not
             # move, grouped with the object) say nothing of where it went; keep three or more
-            keep_a = ~near_b[oa.cells[:, 0], oa.cells[:, 1]]
-            keep_b = ~near_a[ob.cells[:, 0], ob.cells[:, 1]]
+            keep_a = ~near_b[cells_a[:, 0], cells_a[:, 1]]
+            keep_b = ~near_a[cells_b[:, 0], cells_b[:, 1]]
             if keep_a.sum() >= 3 and keep_b.sum() >= 3:
                 from_c = _reference_point(src_xy[keep_a], dst_xy[keep_b], motion)
             else:

@@ -785,7 +785,7 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
 
 
 #: share of the tour's scans the fusion worker fuses at the end of a tour with loop closure; the calling
-#: process fuses the rest, and merges (tools/bench_loops.py balances the two)
+#: process fuses the rest, and merges (a build's -vv log says how long each side waited for the other)
 HEAD_SHARE = 0.5
 
 

@@ -212,57 +212,37 @@ def test_signals_stop_everything_and_leave_nothing(tour, tmp_path, sig, target, 
     _assert_clean(run, out)
 
 
+@pytest.mark.parametrize("at_end", [False, True], ids=["while the tour plays", "while the tour is fused at the end"])
 @pytest.mark.parametrize("fault", ["kill the fusion worker", "SIGTERM"])
-def test_with_loop_closure_in_the_fusion_worker_a_fault_leaves_nothing(tour, tmp_path, fault):
-    # with loop closure the fusion worker runs the loop closer while the tour plays: killing it there, or
-    # stopping the build, is one error line and leaves no process, shared memory or folder behind
+def test_with_loop_closure_a_fault_leaves_nothing(tour, tmp_path, fault, at_end):
+    # with loop closure the fusion worker runs the loop closer while the tour plays, and at its end that
+    # worker and this process each fuse part of the tour from the corrected poses (the registration
+    # worker has ended): killing the worker, or stopping the build, at either moment is one error line
+    # and leaves no process, shared memory or folder behind. A 1 cm grid makes the fusion at the end
+    # last a second or two (during the tour the scans are only spooled)
     bag, cfg = tour
     lc = tmp_path / "lc.yaml"
-    lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\n")
+    lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\n"
+                  + ("grid:\n  resolution: 0.01\n" if at_end else ""))
     out = tmp_path / "map"
     run = Run(["build", str(bag), "--config", str(lc), "--out", str(out)], tmp_path)
     run.wait_for_loop()  # the scans stream, the loop closer takes them in
-    if fault == "SIGTERM":
-        os.kill(run.proc.pid, signal.SIGTERM)
-    else:
-        pid = run.worker("semmap-fusion")
-        assert pid is not None
-        os.kill(pid, signal.SIGKILL)
-    code, err = run.finish()
-    if fault == "SIGTERM":
-        assert code == 128 + signal.SIGTERM, err
-        _one_line(err, "terminated", "SIGTERM")
-    else:
-        assert code == 6, err
-        _one_line(err, "the fusion worker was killed by SIGKILL")
-    _assert_clean(run, out)
-
-
-@pytest.mark.parametrize("fault", ["kill the fusion worker", "SIGTERM"])
-def test_with_loop_closure_a_fault_while_the_tour_is_fused_at_the_end_leaves_nothing(tour, tmp_path, fault):
-    # at the end of a tour with loop closure the fusion worker and this process each fuse part of the tour
-    # from the corrected poses (the registration worker has ended): a fault there is one error line too.
-    # A 1 cm grid makes that fusion last a second or two (during the tour the scans are only spooled)
-    bag, cfg = tour
-    lc = tmp_path / "lc.yaml"
-    lc.write_text(cfg.read_text() + "registration:\n  loop_closure:\n    enabled: true\ngrid:\n  resolution: 0.01\n")
-    out = tmp_path / "map"
-    run = Run(["build", str(bag), "--config", str(lc), "--out", str(out)], tmp_path)
-    run.wait_for_loop()
     fusion = run.worker("semmap-fusion")
     assert fusion is not None
-    run.wait_for(lambda: run.worker("semmap-register") is None, timeout=120)  # the tour's end
-    # hold both there, however slowly this test is scheduled
-    os.kill(run.proc.pid, signal.SIGSTOP)
-    os.kill(fusion, signal.SIGSTOP)
-    assert _running(fusion) and not out.exists(), "the fusion worker had finished before it could be held"
+    if at_end:
+        run.wait_for(lambda: run.worker("semmap-register") is None, timeout=120)  # the tour's end
+        # hold both there, however slowly this test is scheduled
+        os.kill(run.proc.pid, signal.SIGSTOP)
+        os.kill(fusion, signal.SIGSTOP)
+        assert _running(fusion) and not out.exists(), "the fusion worker had finished before it could be held"
     if fault == "SIGTERM":
         os.kill(run.proc.pid, signal.SIGTERM)
     else:
         os.kill(fusion, signal.SIGKILL)
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(fusion, signal.SIGCONT)
-    os.kill(run.proc.pid, signal.SIGCONT)
+    if at_end:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(fusion, signal.SIGCONT)
+        os.kill(run.proc.pid, signal.SIGCONT)
     code, err = run.finish()
     if fault == "SIGTERM":
         assert code == 128 + signal.SIGTERM, err

@@ -1130,8 +1130,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                     out[o.cells[:, 0], o.cells[:, 1]] = True
             return out & changed
 
-        # (objects paired as slid count: a chair pulled away leaves its object, table and chair, looking
-        # pushed by less than its size)
+        # (an object paired as slid lends its cells too: a chair pulled away from its table makes the
+        # object, table and chair, look pushed by less than its size)
         rem_a = remnant(objs_a, gone_ids, removed & ~still_a)
         rem_b = remnant(objs_b, new_ids, added & ~still_b)
         sides = ((only_a, gone, ((added_raw & off_semi_b) | rem_b) & ~lo.dyn_b, True, obst_b & off_semi_b),

@@ -447,7 +447,9 @@ def _building(rng: np.random.Generator) -> _Building:
             parent[find(i)] = find(j)
         dw = round(float(rng.uniform(*DOOR_WIDTH_M)), 2)
         dw = min(dw, s1 - s0 - 2 * DOOR_MARGIN_M)
-        sc = float(rng.uniform(s0 + DOOR_MARGIN_M + dw / 2, s1 - DOOR_MARGIN_M - dw / 2))
+        lo_c = s0 + DOOR_MARGIN_M + dw / 2
+        # a door as wide as the wall leaves one place for it (the bounds may cross by a rounding error)
+        sc = float(rng.uniform(lo_c, max(lo_c, s1 - DOOR_MARGIN_M - dw / 2)))
         ax = int(np.argmax(np.abs(n)))
         centre = np.zeros(2)
         centre[ax], centre[1 - ax] = line[0], sc

@@ -85,3 +85,12 @@ def test_a_turn_is_in_the_truth():
     (c,) = _change_list(base, turned)
     assert c["type"] == "moved" and c["rotation_deg"] == pytest.approx(30.0, abs=0.01)
     assert c["displacement_m"] == pytest.approx(0.5, abs=0.001)
+
+
+def test_a_recipe_that_blocks_the_route_is_drawn_again():
+    # random:162:b first drew changes that put an obstacle 2 cm from the robot's path; the session is the
+    # next draw, which keeps the simulator's rules
+    from semmap.sim.sessions import get_session
+
+    sc = get_session("random:162:b")
+    assert sc.world.name == "random:162:b" and "later:" in sc.world.description

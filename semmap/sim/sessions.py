@@ -15,8 +15,9 @@ changes drawn from a seed (the world's own seed for ``random:SEED``, else 0; ``:
 
 Every change keeps the simulator's rules: furniture clear of walls, of other furniture (5 cm) and
 of the robot's lane, the route collision-free with the same robot, people clear of furniture and
-of the robot. ``semmap simulate`` writes the truth of the changes against the base world
-(``ground_truth/changes.png``, ``changes.yaml``, ``changes.json``).
+of the robot; a recipe that blocks the route is drawn again (up to five times). ``semmap simulate``
+writes the truth of the changes against the base world (``ground_truth/changes.png``, ``changes.yaml``,
+``changes.json``).
 """
 
 from __future__ import annotations
@@ -305,6 +306,10 @@ def session_b(base: Scenario, seed: int, name: str | None = None) -> Scenario:
     return Scenario(world_b, base.overrides, base=w)
 
 
+#: times the changes of a second session are drawn before its route is given up as blocked
+_SESSION_ATTEMPTS = 5
+
+
 def get_session(name: str) -> Scenario:
     """The scenario for a ``NAME:bK`` name (see the module)."""
     from .procedural import scenario_seed
@@ -315,4 +320,14 @@ def get_session(name: str) -> Scenario:
         raise ConfigError(f"{name!r} is not a second-session name (NAME:b or NAME:bK, e.g. random:7:b)")
     base_name, k = parsed
     base = get_scenario(base_name)
-    return session_b(base, (scenario_seed(base_name) or 0) + 7919 * k, name)
+    seed = (scenario_seed(base_name) or 0) + 7919 * k
+    # a drawn change may block the robot's route (a cabinet where the tour's turn cuts a corner): the
+    # changes are drawn again, from the next seed of a sequence of its own; a session that held at once
+    # is the same as ever
+    for attempt in range(_SESSION_ATTEMPTS):
+        try:
+            return session_b(base, seed + 104729 * attempt, name)
+        except SimulationError:
+            if attempt == _SESSION_ATTEMPTS - 1:
+                raise
+    raise AssertionError("unreachable")

@@ -59,10 +59,11 @@ class ScanSpool:
         """The scans from the ``start``-th on, in order."""
         f = self._file
         f.flush()
+        start = max(start, 0)
         if start >= self._count:
             return
-        f.seek(self._offsets[max(start, 0)])
-        for _ in range(max(start, 0), self._count):
+        f.seek(self._offsets[start])
+        for _ in range(start, self._count):
             head = np.frombuffer(f.read(_HEAD.itemsize), _HEAD)[0]
             n = int(head["n"])
             pts = np.frombuffer(f.read(8 * n), np.float32).reshape(n, 2).astype(np.float64)

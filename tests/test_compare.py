@@ -727,3 +727,26 @@ def test_a_couch_seen_as_its_labelled_side_and_an_unlabelled_front_is_measured_b
     assert len(mv) == 1, r.counts()
     assert mv[0].displacement_m == pytest.approx(math.hypot(1.2, 0.8), abs=0.08)
     assert np.linalg.norm(_world(mv[0].to_xy) - ((x0 + x1) / 2, (y0 + y1) / 2)) < 0.05
+
+
+def test_a_couch_pushed_along_its_wall_over_where_it_stood_is_one_move():
+    # A couch (back against the north wall) seen as its front and west side, moved 0.35 m west and
+    # pulled 0.3 m from the wall. B's couch hides most of where A's stood: of A's couch B saw only the
+    # east end of its front, as floor. Cells B did not observe say nothing either way, so that end is
+    # evidence enough of a move (counted over all of A's front, seen or not, it is a sixth: too little)
+    a, b = Room(), Room()
+    a.faces += [("couch", (4.0, 7.1, 6.0, 7.1)), ("couch", (4.0, 7.1, 4.0, 7.95))]
+    a.unseen.append((4.05, 7.15, 6.0, 8.0))
+    b.faces += [("couch", (3.65, 6.8, 5.65, 6.8)), ("couch", (3.65, 6.8, 3.65, 7.65))]
+    b.unseen.append((3.7, 6.85, 5.65, 8.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_appeared"] == counts["object_disappeared"] == counts["static_added"] == 0, counts
+    assert counts["object_moved"] >= 1, counts
+    for mv in r.of_type("object_moved"):
+        assert mv.class_name == "couch"
+        assert mv.displacement_m == pytest.approx(math.hypot(0.35, 0.3), abs=0.05)
+    # A's front beyond B's couch is in the mask as removed, B's new front as added
+    removed, added = _mask_world(r, 2), _mask_world(r, 1)
+    assert np.sum((np.abs(removed[:, 1] - 7.1) < 0.08) & (removed[:, 0] > 5.75)) >= 0.8 * 0.25 / RES
+    assert np.sum((np.abs(added[:, 1] - 6.8) < 0.08) & (added[:, 0] < 5.5)) >= 0.8 * 1.8 / RES

@@ -554,23 +554,26 @@ def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
 
 
 def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], added: NDArray[np.bool_],
-          still_a: NDArray[np.bool_], still_b: NDArray[np.bool_]) -> list[tuple[_Obj, _Obj]]:
+          still_a: NDArray[np.bool_], still_b: NDArray[np.bool_], seen_by_b: NDArray[np.bool_],
+          seen_by_a: NDArray[np.bool_]) -> list[tuple[_Obj, _Obj]]:
     """Pairs of objects that slid by less than their own size. Of ``objs_a`` (A's objects not matched
     yet), those with two or more cells removed (B saw floor there), a quarter or more of their cells
-    that have no obstacle of B within the tolerance (``still_a``); each with the nearest object of
-    its class in ``objs_b`` (B's unmatched ones) within the larger one's length that has as much
-    added (A saw floor there). One session's evidence alone is not enough: a leg the other session
-    did not see is no move."""
+    that B observed (``seen_by_b``) with no obstacle of B within the tolerance (``still_a``); each
+    with the nearest object of its class in ``objs_b`` (B's unmatched ones) within the larger one's
+    length that has as much added (A saw floor there). One session's evidence alone is not enough: a
+    leg the other session did not see is no move. Cells the other session did not observe say
+    nothing: a couch pushed along its wall hides most of where it stood behind its new self."""
 
-    def moved_share(o: _Obj, changed: NDArray[np.bool_], still: NDArray[np.bool_]) -> float:
+    def moved_share(o: _Obj, changed: NDArray[np.bool_], still: NDArray[np.bool_], seen: NDArray[np.bool_]
+                    ) -> float:
         r, c = o.cells[:, 0], o.cells[:, 1]
         n = int(np.count_nonzero(changed[r, c]))
-        return n / max(1, int(np.count_nonzero(~still[r, c]))) if n >= 2 else 0.0
+        return n / max(1, int(np.count_nonzero(seen[r, c] & ~still[r, c]))) if n >= 2 else 0.0
 
     out = []
     used: set[int] = set()
     for oa in objs_a:
-        if moved_share(oa, removed, still_a) < 0.25:
+        if moved_share(oa, removed, still_a, seen_by_b) < 0.25:
             continue
         best, best_d = None, math.inf
         for ob in objs_b:
@@ -578,7 +581,7 @@ def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], ad
                 continue
             d = float(np.linalg.norm(ob.centroid - oa.centroid))
             if d <= max(*oa.src.size, *ob.src.size) and d < best_d \
-                    and moved_share(ob, added, still_b) >= 0.25:
+                    and moved_share(ob, added, still_b, seen_by_a) >= 0.25:
                 best, best_d = ob, d
         if best is not None:
             used.add(id(best))
@@ -1107,7 +1110,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         gone_ids, new_ids = {id(o) for o in gone}, {id(o) for o in new}
         slid = _slid([gone[i] for i in only_a] + [o for o in objs_a if id(o) not in gone_ids],
                      [new[j] for j in only_b] + [o for o in objs_b if id(o) not in new_ids], removed, added,
-                     near_b, near_a)
+                     near_b, near_a, obs_b, obs_a)
         slid_ids = {id(o) for pair in slid for o in pair}
         moved += slid
         only_a = [i for i in only_a if id(gone[i]) not in slid_ids]

@@ -750,3 +750,28 @@ def test_a_couch_pushed_along_its_wall_over_where_it_stood_is_one_move():
     removed, added = _mask_world(r, 2), _mask_world(r, 1)
     assert np.sum((np.abs(removed[:, 1] - 7.1) < 0.08) & (removed[:, 0] > 5.75)) >= 0.8 * 0.25 / RES
     assert np.sum((np.abs(added[:, 1] - 6.8) < 0.08) & (added[:, 0] < 5.5)) >= 0.8 * 1.8 / RES
+
+
+@pytest.mark.parametrize("b_sees", ["floor", "faint legs", "the table"])
+def test_a_table_against_a_wall_is_gone_on_its_free_legs_alone(b_sees):
+    # A's table stands against the north wall: its back legs within a cell of the wall, and the build
+    # grouped with it three bits of the wall behind it its labels bled onto. B's wall is within the
+    # tolerance of all of those, so they say nothing either way: the two front legs decide. Where B
+    # saw floor on them the table is gone; where B's beams hit them again and again (faint legs), or
+    # B's table still stands there, it is not
+    table = ("dining table", (3.0, 7.56), (1.6, 0.8), 0.0)
+    a, b = Room(), Room()
+    a.objects.append(table)
+    a.loose_legs += [(2.7, 8.0), (3.0, 8.0), (3.3, 8.0)]
+    if b_sees == "faint legs":
+        b.faint_legs += [tuple(leg) for leg in b.legs(*table[1:])[:2]]
+    elif b_sees == "the table":
+        b.objects.append(table)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_disappeared"] == (1 if b_sees == "floor" else 0), counts
+    assert counts["object_moved"] == counts["object_appeared"] == counts["static_removed"] == 0, counts
+    if b_sees == "floor":
+        removed = _mask_world(r, 2)
+        front = removed[removed[:, 1] < 7.4]
+        assert front.shape[0] >= 4 and np.all(np.abs(front[:, 0] - 3.0) > 0.6)  # the front legs' cells

@@ -835,11 +835,17 @@ _UNANIMOUS_CELLS = 5
 
 def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArray[np.bool_],
                      other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
-                     left_out: dict[str, int], key: str) -> list[_Obj]:
+                     left_out: dict[str, int], key: str, by_wall: NDArray[np.bool_] | None = None,
+                     others: list[_Obj] | None = None) -> list[_Obj]:
     """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). A cell with
     an obstacle of the other session within the tolerance (``still``) is there still; one beside
-    people (``people``) with none is no evidence either way. An object the other session did not see
-    enough of is left out (counted under ``key``), never called gone."""
+    people (``people``) with none is no evidence either way; nor, for an object with no object of its
+    class near it in the other session (``others``: it went, or came, rather than slid), is a cell by
+    a wall both sessions see (``by_wall``: this session's obstacles that are in no object, grown by
+    the tolerance): a table's back legs against a wall, and the wall behind them its labels bled onto,
+    are within the tolerance of the other session's wall whether the table is there or not, so its
+    front legs decide (when they are three cells or more and a fifth of it). An object the other
+    session did not see enough of is left out (counted under ``key``), never called gone."""
     out = []
     for o in objs:
         if o.cells.shape[0] == 0:
@@ -855,7 +861,15 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
                                                   and not unanimous):
             left_out[key] += 1
             continue
-        if float(changed[r, c][clear].mean()) >= 0.5:
+        judged = clear
+        if by_wall is not None and not any(
+                ob.src.class_name == o.src.class_name
+                and float(np.linalg.norm(ob.centroid - o.centroid)) <= max(*o.src.size, *ob.src.size)
+                for ob in others or ()):
+            judged = clear & ~(by_wall[r, c] & still[r, c])
+            if judged.sum() < max(3, 0.2 * r.size):
+                judged = clear
+        if float(changed[r, c][judged].mean()) >= 0.5:
             out.append(o)
     return out
 
@@ -1087,10 +1101,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # there still: its map lost a thin leg, which is no evidence the object went
         still_a = near_b if lo.glimpse_b is None else near_b | _dilate(lo.glimpse_b, fine)
         still_b = near_a if lo.glimpse_a is None else near_a | _dilate(lo.glimpse_a, fine)
+        # each session's walls, as far as its own map tells: obstacles in no object of it
+        wall_a = lo.occ_a & ~lo.semi_a if lo.index_a is None else lo.occ_a & ~lo.semi_a & (lo.index_a < 0)
+        wall_b = lo.occ_b & ~lo.semi_b if lo.index_b is None else lo.occ_b & ~lo.semi_b & (lo.index_b < 0)
+        wall_a, wall_b = _dilate(wall_a, tol), _dilate(wall_b, tol)
         gone = _changed_objects(objs_a, removed & ~still_a, still_a, obs_b, people_for_a, st, left_out,
-                                "objects_unobserved_in_b")
+                                "objects_unobserved_in_b", wall_a, objs_b)
         new = _changed_objects(objs_b, added & ~still_b, still_b, obs_a, people_for_b, st, left_out,
-                               "objects_unobserved_in_a")
+                               "objects_unobserved_in_a", wall_b, objs_a)
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}

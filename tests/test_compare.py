@@ -775,3 +775,25 @@ def test_a_table_against_a_wall_is_gone_on_its_free_legs_alone(b_sees):
         removed = _mask_world(r, 2)
         front = removed[removed[:, 1] < 7.4]
         assert front.shape[0] >= 4 and np.all(np.abs(front[:, 0] - 3.0) > 0.6)  # the front legs' cells
+
+
+def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
+    # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
+    # person's, so those two are voided as people and the two left are too few for a table. Voided legs
+    # still count toward the set when two of its legs stand away from people: the table is added, all
+    # four legs in the mask. Three blobs a walker left in A's map, all beside A's people evidence, are
+    # no set: nothing is removed there
+    a, b = Room(), Room()
+    b.unlabelled.append(("dining table", (5.0, 4.0), (1.2, 0.8), 0.0))
+    b.unlabelled_leg_half = 0.0
+    legs = Room().legs((5.0, 4.0), (1.2, 0.8), 0.0)
+    b.dropped += [(legs[0][0] - 0.1, legs[0][1]), (legs[3][0] - 0.1, legs[3][1])]
+    for p in ((2.0, 2.0), (2.2, 2.15), (2.05, 2.3)):
+        a.walls.append((p[0], p[1], p[0], p[1]))
+    a.dropped.append((2.1, 2.1))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["static_added"] == 1 and counts["static_removed"] == 0, counts
+    added = _mask_world(r, 1)
+    assert all(np.min(np.linalg.norm(added - leg, axis=1)) < 0.05 for leg in legs)
+    assert not np.any(np.linalg.norm(_mask_world(r, 2) - (2.1, 2.1), axis=1) < 0.5)

@@ -936,10 +936,13 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
     return out, kept, lab, [int(k) for k in keep_ids]
 
 
-def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int
+def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int,
+              strong: NDArray[np.bool_] | None = None
               ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
-    whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces."""
+    whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces. With
+    ``strong``, a set also needs two blobs that touch it (legs away from where people were: two
+    legs by people may be a person's two)."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
@@ -952,6 +955,9 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
                         np.bincount(ids, weights=cc, minlength=n + 1)[1:] / count], axis=1)
     roots = _clusters(centres, span_cells)
     big = [r for r, c in zip(*np.unique(roots, return_counts=True), strict=True) if c >= min_legs]
+    if strong is not None:
+        is_strong = np.bincount(ids, weights=strong[rr, cc], minlength=n + 1)[1:] > 0
+        big = [r for r in big if int(is_strong[roots == r].sum()) >= 2]
     if not big:
         return none
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
@@ -1279,13 +1285,18 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, value, own_occ, other_occ, other_free, other_semi in (
-            ("static_added", added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a, lo.semi_a),
-            ("static_removed", removed & ~on_objects, 2, lo.occ_a, lo.occ_b, lo.free_b, lo.semi_b)):
+    for kind, cells, voided, value, own_occ, other_occ, other_free, other_semi in (
+            ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a,
+             lo.semi_a),
+            ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.occ_b,
+             lo.free_b, lo.semi_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
-        # when three or more stand within a table's span of each other: furniture, not noise
-        f2, k2, l2, i2 = _leg_sets(cells & ~kept, spec, kind, st.leg_span_m / res, st.min_fit_legs)
+        # when three or more stand within a table's span of each other: furniture, not noise. Legs
+        # voided as people's count too, and join the set, when two of its legs stand away from people
+        # (a table a person stood at, whose map dropped cells beside two of its legs)
+        f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided, spec, kind, st.leg_span_m / res, st.min_fit_legs,
+                                   ~people)
         if i2:
             off = int(labels.max())
             on_sets = l2 > 0

@@ -941,8 +941,8 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
               ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
     whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces. With
-    ``strong``, a set also needs two blobs that touch it (legs away from where people were: two
-    legs by people may be a person's two)."""
+    ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
+    people may be a person's two."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))

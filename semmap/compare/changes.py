@@ -1111,9 +1111,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         wall_a = lo.occ_a & ~lo.semi_a if lo.index_a is None else lo.occ_a & ~lo.semi_a & (lo.index_a < 0)
         wall_b = lo.occ_b & ~lo.semi_b if lo.index_b is None else lo.occ_b & ~lo.semi_b & (lo.index_b < 0)
         wall_a, wall_b = _dilate(wall_a, tol), _dilate(wall_b, tol)
-        gone = _changed_objects(objs_a, removed & ~still_a, still_a, obs_b, people_for_a, st, left_out,
+        # the cells each session changed with no obstacle of the other there still
+        gone_cells, new_cells = removed & ~still_a, added & ~still_b
+        gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,
                                 "objects_unobserved_in_b", wall_a, objs_b)
-        new = _changed_objects(objs_b, added & ~still_b, still_b, obs_a, people_for_b, st, left_out,
+        new = _changed_objects(objs_b, new_cells, still_b, obs_a, people_for_b, st, left_out,
                                "objects_unobserved_in_a", wall_b, objs_a)
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
@@ -1159,8 +1161,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
 
         # (an object paired as slid lends its cells too: a chair pulled away from its table makes the
         # object, table and chair, look pushed by less than its size)
-        rem_a = remnant(objs_a, gone_ids, removed & ~still_a)
-        rem_b = remnant(objs_b, new_ids, added & ~still_b)
+        rem_a = remnant(objs_a, gone_ids, gone_cells)
+        rem_b = remnant(objs_b, new_ids, new_cells)
         sides = ((only_a, gone, ((added_raw & off_semi_b) | rem_b) & ~lo.dyn_b, True, obst_b & off_semi_b),
                  (only_b, new, ((removed_raw & off_semi_a) | rem_a) & ~lo.dyn_a, False, obst_a & off_semi_a))
         for objs_idx, objs_all, changed, in_a, other in sides:

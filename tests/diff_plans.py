@@ -142,17 +142,28 @@ class Room:
             fp = se2_apply(t_map_world, np.asarray(c, float) + radius * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]))
             objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (2 * radius, radius), 0.0,
                                          int(held.sum()), 5, tuple(map(tuple, fp))))
-        for cls, (x0, y0, x1, y1) in self.faces:
-            n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
-            line = np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1)
+        for cls, seg in self.faces:
+            # one segment (x0, y0, x1, y1), or a list of them: faces of one object (a couch's front and ends)
+            segs = [seg] if isinstance(seg, tuple) else list(seg)
+            lines = []
+            for x0, y0, x1, y1 in segs:
+                n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
+                lines.append(np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1))
+            line = np.concatenate(lines)
             held = np.zeros(spec.shape, bool)
             mark(line, occ, semi, held)
             index[held] = len(objs)
             cm = se2_apply(t_map_world, line.mean(axis=0)[None])[0]
-            fp = se2_apply(t_map_world, np.array([[x0, y0], [x1, y1], [x1, y1], [x0, y0]], float))
-            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), (math.hypot(x1 - x0, y1 - y0), RES),
-                                         float(math.atan2(y1 - y0, x1 - x0) - T_world_map[2]), int(held.sum()), 5,
-                                         tuple(map(tuple, fp))))
+            (x0, y0), (x1, y1) = line.min(axis=0), line.max(axis=0)
+            if len(segs) == 1:
+                (x0, y0, x1, y1) = segs[0]
+                fp = se2_apply(t_map_world, np.array([[x0, y0], [x1, y1], [x1, y1], [x0, y0]], float))
+                dims, yaw = (math.hypot(x1 - x0, y1 - y0), RES), math.atan2(y1 - y0, x1 - x0)
+            else:  # the box around them, axis-aligned in the world
+                fp = se2_apply(t_map_world, np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float))
+                dims, yaw = (max(x1 - x0, y1 - y0), min(x1 - x0, y1 - y0)), 0.0 if x1 - x0 >= y1 - y0 else math.pi / 2
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims, float(yaw - T_world_map[2]),
+                                         int(held.sum()), 5, tuple(map(tuple, fp))))
         for c, radius, seen_from in self.unlabelled_round:
             ang = seen_from + np.linspace(-math.pi / 2, math.pi / 2, 120)
             mark(np.asarray(c, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)]), occ)

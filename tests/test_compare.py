@@ -752,6 +752,39 @@ def test_a_couch_pushed_along_its_wall_over_where_it_stood_is_one_move():
     assert np.sum((np.abs(added[:, 1] - 6.8) < 0.08) & (added[:, 0] < 5.5)) >= 0.8 * 1.8 / RES
 
 
+@pytest.mark.parametrize("b_couch", ["narrower and deeper", "the same, a cell deeper"])
+def test_a_couch_replaced_where_it_stood_by_one_of_another_shape_is_gone_and_new(b_couch):
+    # Each session's couch object also holds the wall corner behind it its labels bled onto (as a build
+    # groups them), the same in both, so no rigid fit moves it: it is still. A's couch is 2 m wide with
+    # 0.4 m ends. In B it was replaced where it stood by one 1.6 m wide reaching 0.2 m further into the
+    # room: B saw floor on A's ends, A saw floor where B's front is. Neither object went or came as a
+    # whole, but those faces did: A's couch is gone and B's new, and their faces are in the mask.
+    # A couch mapped a cell deeper in B is the same couch
+    corner = [(3.0, 7.95, 7.0, 7.95), (3.0, 6.3, 3.0, 7.95)]
+    a, b = Room(), Room()
+    a.faces.append(("couch", [*corner, (4.0, 7.1, 6.0, 7.1), (4.0, 7.1, 4.0, 7.5), (6.0, 7.1, 6.0, 7.5)]))
+    a.unseen.append((4.05, 7.15, 5.95, 7.9))
+    x0, x1, y = (4.2, 5.8, 6.9) if b_couch == "narrower and deeper" else (4.0, 6.0, 7.05)
+    b.faces.append(("couch", [*corner, (x0, y, x1, y), (x0, y, x0, 7.5), (x1, y, x1, 7.5)]))
+    b.unseen.append((x0 + 0.05, y + 0.05, x1 - 0.05, 7.9))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == counts["static_added"] == counts["static_removed"] == 0, counts
+    added, removed = _mask_world(r, 1), _mask_world(r, 2)
+    if b_couch == "narrower and deeper":
+        assert counts["object_appeared"] == counts["object_disappeared"] == 1, counts
+        assert {c.class_name for c in r.changes} == {"couch"}
+        # B's front, most of its 1.6 m, added; A's ends, most of their 0.4 m each, removed
+        assert np.sum((np.abs(added[:, 1] - 6.9) < 0.08) & (np.abs(added[:, 0] - 5.0) < 0.8)) >= 0.8 * 1.6 / RES
+        for x in (4.0, 6.0):
+            assert np.sum((np.abs(removed[:, 0] - x) < 0.08) & (removed[:, 1] > 7.15)) >= 0.7 * 0.35 / RES
+        # the corner, the same in both, is in neither
+        assert not np.any(np.abs(np.concatenate([added, removed])[:, 1] - 7.95) < 0.08)
+    else:
+        assert counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+        assert added.shape[0] == removed.shape[0] == 0
+
+
 @pytest.mark.parametrize("b_sees", ["floor", "faint legs", "the table"])
 def test_a_table_against_a_wall_is_gone_on_its_free_legs_alone(b_sees):
     # A's table stands against the north wall: its back legs within a cell of the wall, and the build

@@ -77,6 +77,9 @@ class ChangeSettings:
     #: an object that moved less than this, and turned less than ``still_deg``, did not move
     still_m: float = 0.10
     still_deg: float = 10.0
+    #: a face at least this long of an object that did not move, standing where the other session saw
+    #: floor, is a change: the object was replaced by another of its class (a wider couch) or extended
+    face_m: float = 0.3
     #: an object is matched to one of its class at most this far away
     max_move_m: float = 4.0
     #: an object counts as seen by the other session when this share of its footprint was observed there
@@ -600,6 +603,19 @@ def _pieces(changed: NDArray[np.bool_], spec: GridSpec, group_cells: float) -> l
         if sl is not None:
             r, c = np.nonzero(lab[sl] == k)
             out.append(np.stack([r + sl[0].start, c + sl[1].start], axis=1).astype(np.intp))
+    return out
+
+
+def _long_pieces(o: _Obj, changed: NDArray[np.bool_], spec: GridSpec, min_length: float) -> NDArray[np.bool_]:
+    """The pieces of ``changed`` on object ``o``'s cells (8-connected) that reach ``min_length`` (m) along
+    a grid axis: faces, not a leg's cell or two."""
+    own = np.zeros(spec.shape, bool)
+    own[o.cells[:, 0], o.cells[:, 1]] = True
+    lab, _ = ndimage.label(changed & own, np.ones((3, 3), bool))
+    out = np.zeros(spec.shape, bool)
+    for k, sl in enumerate(ndimage.find_objects(lab), 1):
+        if sl is not None and spec.resolution * max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) >= min_length:
+            out[sl] |= lab[sl] == k
     return out
 
 
@@ -1261,6 +1277,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
             if disp < st.still_m and abs(turn) < st.still_deg:
+                # it did not move, but a face of it may stand where the other session saw floor
+                for o, changed, value, kind in ((oa, removed, 2, "object_disappeared"),
+                                                (ob, added, 1, "object_appeared")):
+                    faced = _long_pieces(o, changed, spec, st.face_m)
+                    if faced.any():
+                        mask[faced] = value
+                        n = int(o.cells.shape[0])
+                        changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
+                                              o.src.class_name))
                 continue
             n = int(ob.cells.shape[0])
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,

@@ -785,6 +785,31 @@ def test_a_couch_replaced_where_it_stood_by_one_of_another_shape_is_gone_and_new
         assert added.shape[0] == removed.shape[0] == 0
 
 
+def test_a_new_couch_its_build_grouped_with_the_couch_beside_it_is_new():
+    # A saw a couch's front and floor east of it. B has a second couch there, end to end with it, and
+    # its build listed both as one couch object, 4.3 m long: longer than any couch, so not the couch
+    # A saw, seen more fully. The new couch is reported where it stands, its cells in the mask, and
+    # nothing of the couch that stayed
+    a, b = Room(), Room()
+    old = [(2.0, 7.1, 4.0, 7.1)]
+    new = [(4.3, 7.1, 6.3, 7.1), (4.3, 7.1, 4.3, 7.9), (6.3, 7.1, 6.3, 7.9)]
+    a.faces.append(("couch", old[0]))
+    a.unseen.append((2.0, 7.1, 4.0, 7.95))  # behind the front: neither saw the couch's inside
+    b.faces.append(("couch", old + new))
+    b.unseen += [(2.0, 7.1, 4.0, 7.95), (4.35, 7.1, 6.25, 7.95)]
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_appeared"] == 1, counts
+    assert counts["object_moved"] == counts["object_disappeared"] == counts["static_added"] == 0, counts
+    (new_couch,) = r.of_type("object_appeared")
+    assert new_couch.class_name == "couch"
+    assert np.linalg.norm(_world(new_couch.centroid) - (5.3, 7.4)) < 0.3
+    added = _mask_world(r, 1)
+    assert added.shape[0] >= 0.8 * (2.0 + 2 * 0.8) / RES
+    # (but a cell of the old couch's end each session's grid rasterised apart)
+    assert np.sum(added[:, 0] < 4.15) <= 2 and not np.any(r.mask == 2)
+
+
 @pytest.mark.parametrize("b_sees", ["floor", "faint legs", "the table"])
 def test_a_table_against_a_wall_is_gone_on_its_free_legs_alone(b_sees):
     # A's table stands against the north wall: its back legs within a cell of the wall, and the build

@@ -24,6 +24,7 @@ only (``DiffResult.semantic`` is False and the report says so).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -309,16 +310,21 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
     return pose, rms
 
 
-def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj]) -> list[_Obj]:
+def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
+                 longest: Callable[[str], float] | None = None) -> list[_Obj]:
     """``changed`` less the objects that are an object of their class in ``unchanged_other`` (the
     other session's objects that did not change) seen more fully: most of that object's cells, and a
     third of this one's, lie within a cell and a half of each other (two legs of a chair in A, four in
     B). Not when they share a cell or two: a build may list a moved table with a leg of the unchanged
-    table beside it, or two beds as one."""
+    table beside it, or two beds as one. Nor when it is longer than ``longest(class)`` (m): more than
+    one object of its class, grouped by its build (a new couch put beside one that stayed)."""
     out = []
     for o in changed:
         xy = o.cells.astype(np.float64)
         same = False
+        if longest is not None and o.src.class_name and max(o.src.size) > longest(o.src.class_name):
+            out.append(o)
+            continue
         for u in unchanged_other:
             if u.src.class_name != o.src.class_name or not u.cells.shape[0] or not xy.shape[0]:
                 continue
@@ -1136,9 +1142,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}
-        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids])
+        def longest(cls: str) -> float:
+            return 1.1 * float(sizes.size_of(cls)) + res
+
+        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], longest)
         gone_ids = {id(o) for o in gone}
-        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids])
+        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], longest)
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
@@ -1299,8 +1308,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 o = objs[i]
                 zone = _dilate(_cell_mask(o, spec), near)
                 n = int(o.cells.shape[0])
-                changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
-                                      o.src.class_name))
+                at = o.centroid
+                if o.src.class_name and max(o.src.size) > longest(o.src.class_name):
+                    # more than one object grouped (a new couch beside one that stayed): where its cells
+                    # changed, not its middle
+                    changed = (added if kind == "object_appeared" else removed)[o.cells[:, 0], o.cells[:, 1]]
+                    if changed.any():
+                        at = _cells_xy(o.cells[changed], spec).mean(axis=0)
+                        n = int(changed.sum())
+                changes.append(Change(kind, (float(at[0]), float(at[1])), n * res * res, n, o.src.class_name))
                 if kind == "object_appeared":
                     mark(o, added, lo.free_a, zone, 1)
                 else:

@@ -1292,9 +1292,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                     faced = _long_pieces(o, changed, spec, st.face_m)
                     if faced.any():
                         mask[faced] = value
-                        n = int(o.cells.shape[0])
-                        changes.append(Change(kind, (float(o.centroid[0]), float(o.centroid[1])), n * res * res, n,
-                                              o.src.class_name))
+                        # reported where its faces changed: the object may hold the wall behind it
+                        at = _cells_xy(np.argwhere(faced), spec).mean(axis=0)
+                        n = int(np.count_nonzero(faced))
+                        changes.append(Change(kind, (float(at[0]), float(at[1])), n * res * res, n, o.src.class_name))
                 continue
             n = int(ob.cells.shape[0])
             changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,

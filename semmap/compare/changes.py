@@ -311,18 +311,18 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
 
 
 def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
-                 longest: Callable[[str], float] | None = None) -> list[_Obj]:
+                 too_long: Callable[[_Obj], bool] | None = None) -> list[_Obj]:
     """``changed`` less the objects that are an object of their class in ``unchanged_other`` (the
     other session's objects that did not change) seen more fully: most of that object's cells, and a
     third of this one's, lie within a cell and a half of each other (two legs of a chair in A, four in
     B). Not when they share a cell or two: a build may list a moved table with a leg of the unchanged
-    table beside it, or two beds as one. Nor when it is longer than ``longest(class)`` (m): more than
-    one object of its class, grouped by its build (a new couch put beside one that stayed)."""
+    table beside it, or two beds as one. Nor when it is ``too_long`` for its class: more than one
+    object of its class, grouped by its build (a new couch put beside one that stayed)."""
     out = []
     for o in changed:
         xy = o.cells.astype(np.float64)
         same = False
-        if longest is not None and o.src.class_name and max(o.src.size) > longest(o.src.class_name):
+        if too_long is not None and too_long(o):
             out.append(o)
             continue
         for u in unchanged_other:
@@ -1142,12 +1142,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}
-        def longest(cls: str) -> float:
-            return 1.1 * float(sizes.size_of(cls)) + res
+        def too_long(o: _Obj) -> bool:
+            """Longer than one object of its class can be: more than one, grouped by its build."""
+            return bool(o.src.class_name) and max(o.src.size) > 1.1 * float(sizes.size_of(o.src.class_name)) + res
 
-        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], longest)
+        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long)
         gone_ids = {id(o) for o in gone}
-        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], longest)
+        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], too_long)
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
@@ -1310,7 +1311,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 zone = _dilate(_cell_mask(o, spec), near)
                 n = int(o.cells.shape[0])
                 at = o.centroid
-                if o.src.class_name and max(o.src.size) > longest(o.src.class_name):
+                if too_long(o):
                     # more than one object grouped (a new couch beside one that stayed): where its cells
                     # changed, not its middle
                     changed = (added if kind == "object_appeared" else removed)[o.cells[:, 0], o.cells[:, 1]]

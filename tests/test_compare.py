@@ -307,6 +307,25 @@ def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a
     assert people[15:18, 5:8].all()
 
 
+def test_a_standing_persons_leg_the_cleaning_kept_part_of_is_people_not_a_surfaces_fringe():
+    # a person stood out of the camera's view; cleaning dropped two cells at the edge of one leg and
+    # kept the rest (a blob three cells across, no label): those two cells are people, so the diff
+    # voids the kept blob. Beside a wall's face (ten cells), the same two cells are its fringe
+    occ = np.zeros((20, 20), bool)
+    dropped = np.zeros_like(occ)
+    occ[5:8, 5:7] = True
+    dropped[7, 7] = dropped[8, 6] = True
+    occ[14, 2:12] = True
+    dropped[15, 5] = dropped[15, 6] = True
+    zeros = np.zeros(occ.shape, np.int32)
+    people = people_cells(occ, dropped, zeros, zeros, 0.05)
+    assert people[7, 7] and people[8, 6]
+    assert not people[15, 5] and not people[15, 6]
+    # at a 2 cm grid the same blob is 6 cm across, still no wider than a leg; at 10 cm it is 30 cm: a surface
+    assert people_cells(occ, dropped, zeros, zeros, 0.02)[7, 7]
+    assert not people_cells(occ, dropped, zeros, zeros, 0.10)[7, 7]
+
+
 def _mask_world(r, value):
     rows, cols = np.nonzero(r.mask == value)
     return se2_apply(T_A, np.stack([r.spec.origin_x + (cols + 0.5) * RES, r.spec.origin_y + (rows + 0.5) * RES],

@@ -174,6 +174,86 @@ def test_log_odds_stay_within_their_clamps():
     assert lay.free[r, c] == 300
 
 
+def _first_return(world: World, origin, targets) -> np.ndarray:
+    """The range of the first surface on the ray from ``origin`` towards each of ``targets`` (inf: none)."""
+    d = np.asarray(targets, float) - origin
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    best = np.full(d.shape[0], np.inf)
+    for a, b, *_ in world.segments:
+        e = b - a
+        den = d[:, 0] * e[1] - d[:, 1] * e[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((a[0] - origin[0]) * e[1] - (a[1] - origin[1]) * e[0]) / den
+            u = ((a[0] - origin[0]) * d[:, 1] - (a[1] - origin[1]) * d[:, 0]) / den
+        ok = (np.abs(den) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1)
+        best = np.where(ok, np.minimum(best, t), best)
+    for c0, r, *_ in world.discs:
+        f = origin - c0
+        bq = d @ f
+        disc = bq * bq - (f @ f - r * r)
+        t = -bq - np.sqrt(np.maximum(disc, 0.0))
+        best = np.where((disc >= 0) & (t > 0), np.minimum(best, t), best)
+    return best
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_scan_frees_only_cells_its_beams_could_see(seed):
+    """Across random cluttered scans, every freed cell lies in front of the first surface on the ray
+    from the sensor to it (within a cell): past an object's edge, the wedge between the beam that hit
+    it and the beam that went on to a far wall is the object's shadow, which no beam crossed."""
+    rng = np.random.default_rng(seed)
+    world = World().room(-9, -7, 9, 7)
+    for _ in range(12):  # boxes: straight faces and sharp edges
+        x, y = rng.uniform(-6, 6, 2)
+        w, h = rng.uniform(0.3, 2.0, 2)
+        for a, b in (((x, y), (x + w, y)), ((x + w, y), (x + w, y + h)), ((x + w, y + h), (x, y + h)),
+                     ((x, y + h), (x, y))):
+            world.wall(a, b)
+    for _ in range(10):
+        world.leg(rng.uniform(-6, 6, 2), rng.uniform(0.02, 0.3), 2, SEMI)
+    cfg = GridConfig()
+    for k in range(8):
+        pose = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-np.pi, np.pi)])
+        if np.isfinite(_first_return(world, pose[:2], [pose[:2] + 1e-3])).any():
+            continue
+        g = SemanticGrid(cfg, NAMES)
+        g.integrate(pose, world.scan(pose, noise=0.01, rng=rng))
+        lay = g.layers()
+        xs, ys = lay.spec.cell_centres()
+        cells = np.column_stack([xs[lay.free > 0], ys[lay.free > 0]])
+        rho = np.hypot(*(cells - pose[:2]).T)
+        hidden = rho > _first_return(world, pose[:2], cells) + cfg.resolution
+        assert not hidden.any(), f"scan {k}: {int(hidden.sum())} cells freed behind a surface, e.g. {cells[hidden][0]}"
+
+
+def test_the_floor_beside_a_wall_seen_at_a_grazing_angle_is_freed():
+    """Beams grazing a long wall end far apart along it; the floor between them and the wall is free
+    (the edge between their end points runs along the wall, not across a shadow)."""
+    world = World().wall((-1.0, 0.0), (15.0, 0.0)).wall((-1.0, 3.0), (15.0, 3.0)).wall((15.0, 0.0), (15.0, 3.0))
+    g = fuse(world, [(0.0, 0.35, 0.0)])
+    lay = g.layers()
+    xs, ys = lay.spec.cell_centres()
+    beside = (xs > 5.0) & (xs < 9.0) & (ys > 0.1) & (ys < 0.25)
+    assert (lay.log_odds[beside] < 0).mean() >= 0.9
+
+
+def test_a_couch_seen_end_on_down_a_corridor_is_not_cleared_through_its_arm():
+    """A robot far down a corridor sees a couch's arm end-on, and beams just past the arm reach the far
+    wall: the seat behind the arm and its long face stay uncleared, the corridor beside it is cleared.
+    (A straight edge from the arm's return to the far wall's would cut through the seat.)"""
+    world = World().wall((-12.0, -1.5), (18.0, -1.5)).wall((-12.0, 1.5), (18.0, 1.5)).wall((-12.0, -1.5), (-12.0, 1.5))
+    x0, y0, x1, y1 = 4.0, 0.16, 6.0, 0.86
+    for a, b in (((x0, y0), (x1, y0)), ((x1, y0), (x1, y1)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0))):
+        world.wall(a, b)
+    poses = [(x, y, math.pi) for x in np.arange(10.0, 17.0, 0.5) for y in (0.25, 0.4, 0.55)]
+    lay = fuse(world, poses).layers()
+    xs, ys = lay.spec.cell_centres()
+    inside = (xs > 4.05) & (xs < 5.95) & (ys > 0.2) & (ys < 0.8)
+    beside = (xs > 4.1) & (xs < 5.9) & (ys > -0.6) & (ys < -0.1)
+    assert (lay.free[inside] == 0).all()
+    assert (lay.log_odds[beside] < 0).all()
+
+
 def test_a_dropout_does_not_punch_through_a_wall():
     """A beam without a return between two wall hits clears no further than the wall."""
     world = World().wall((2.0, -5.0), (2.0, 5.0)).wall((6.0, -5.0), (6.0, 5.0))

@@ -110,33 +110,44 @@ def distinct_names(sessions: Sequence[Session]) -> tuple[Session, ...]:
 
 
 def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person_hits: NDArray[np.integer],
-                 labelled_hits: NDArray[np.integer]) -> NDArray[np.bool_]:
+                 labelled_hits: NDArray[np.integer], resolution: float = 0.05) -> NDArray[np.bool_]:
     """Where a map saw people: cells cleaning ``dropped`` as dynamic, and cells a good share (30 %)
     of whose camera-labelled hits were people (a person cleaning left in; a stray person label on a
     chair leg is not enough). A dropped cell no camera labelled a person is none when it lies in a gap
     of a surface (obstacles on two opposite sides) or in a line of such cells one cell thick: beams
     grazing a face seen obliquely pass some of its cells now and then, and cleaning drops them as
     "seen through"; a person's leg is two or three cells across. Nor is one in a piece of one or two
-    such cells beside a kept surface (its fringe)."""
+    such cells beside a kept surface (its fringe), a surface being longer than a leg is wide: beside a
+    kept blob no wider than a leg they are a person's leg the cleaning kept part of."""
     person = np.asarray(person_hits, np.float32)
     unlabelled = dropped & (person == 0)
     lab, n = ndimage.label(unlabelled, structure=np.ones((3, 3), bool))  # its pieces, 8-connected
-    faces = (_surface_gaps(occupied) | _lines(unlabelled, lab, n) | _fringe(occupied, unlabelled, lab, n)) & unlabelled
+    fringe = _fringe(occupied, unlabelled, lab, n, min_extent=_LEG_M / resolution)
+    faces = (_surface_gaps(occupied) | _lines(unlabelled, lab, n) | fringe) & unlabelled
     return (dropped & ~faces) | ((person > 0) & (person >= 0.3 * np.asarray(labelled_hits, np.float32)))
 
 
+#: a person's leg is at most this wide (m): a kept blob no larger has no fringe of its own
+_LEG_M = 0.2
+
+
 def _fringe(occupied: NDArray[np.bool_], cells: NDArray[np.bool_], lab: NDArray[np.int32], n: int,
-            max_cells: int = 2, min_surface: int = 5) -> NDArray[np.bool_]:
+            max_cells: int = 2, min_surface: int = 5, min_extent: float = 0.0) -> NDArray[np.bool_]:
     """The pieces of ``cells`` (``lab``: their ``n`` 8-connected labels) of at most ``max_cells`` cells
-    touching a kept obstacle of ``min_surface`` cells or more: the fringe of a surface whose beam ends
-    scatter by a cell, seen through now and then. A person who walked away leaves the whole leg
-    dropped, two or three cells across, and nothing kept beside it."""
+    touching a kept obstacle of ``min_surface`` cells or more that spans more than ``min_extent``
+    cells: the fringe of a surface whose beam ends scatter by a cell, seen through now and then. A
+    person who walked away leaves the whole leg dropped, two or three cells across, and nothing kept
+    beside it; one who stood still may leave part of a leg kept, no wider than a leg."""
     if n == 0:
         return np.zeros_like(cells)
     small = np.bincount(lab.ravel(), minlength=n + 1) <= max_cells
     small[0] = False
     olab, m = ndimage.label(occupied, structure=np.ones((3, 3), bool))
     big = np.bincount(olab.ravel(), minlength=m + 1) >= min_surface
+    if min_extent > 0:
+        for k, sl in enumerate(ndimage.find_objects(olab), start=1):
+            if big[k] and sl is not None and max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start) <= min_extent:
+                big[k] = False
     big[0] = False
     beside = ndimage.binary_dilation(big[olab], np.ones((3, 3), bool))
     touching = np.zeros(n + 1, bool)
@@ -225,7 +236,7 @@ def open_session(path: str | Path) -> Session:
         mob = layers.mobility
         occupied = np.asarray(m.occupied, bool)
         dynamic = people_cells(occupied, np.asarray(m.cleaned.dynamic_removed, bool), mob[Mobility.DYNAMIC],
-                               mob[Mobility.STATIC:].sum(axis=0))
+                               mob[Mobility.STATIC:].sum(axis=0), m.spec.resolution)
         hits = layers.hits.astype(np.float32)
         seen = hits + layers.free.astype(np.float32)
         glimpsed = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS)

@@ -425,8 +425,12 @@ class SemanticGrid:
         scratch = self._raster(0, r1 - r0, bw)
         scratch.fill(0)
         f = (1 << _SHIFT) / res
-        verts = np.empty((fx.size + 1, 2), np.int32)
         bx, by = gx + res * (c0 + 0.5), gy + res * (r0 + 0.5)
+        if cfg.free_shadows and fx.size > 1:
+            # between two neighbouring beams whose free lengths differ by more than two cells, free
+            # space reaches only the nearer: the wedge beyond it is that return's shadow
+            fx, fy = _shadowed(fx, fy, ox_m, oy_m, scale * rx, scale * ry, free_len, 2.0 * res)
+        verts = np.empty((fx.size + 1, 2), np.int32)
         verts[0] = round((ox_m - bx) * f), round((oy_m - by) * f)
         np.rint((fx - bx) * f, out=verts[1:, 0], casting="unsafe")
         np.rint((fy - by) * f, out=verts[1:, 1], casting="unsafe")
@@ -660,6 +664,57 @@ def merge_continued(head: GridLayers, tail: SemanticGrid) -> GridLayers:
         sightings=_frozen(np.concatenate(sightings) if sightings else np.zeros((0, 4), np.int32)),
         grid_bytes=head.grid_bytes + tail.nbytes, grid_tiles=int(observed.sum()),
     )
+
+
+def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: float, vx: NDArray[np.float64],
+              vy: NDArray[np.float64], length: NDArray[np.float64], jump: float
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The free polygon's vertices (after the origin), stepping back at each occluding edge.
+
+    ``fx, fy``: each beam's free end point; ``(vx, vy)``: the beam's vector to it (length ``length``).
+    Between beams i and i+1 whose lengths differ by more than ``jump``, the straight edge between
+    their end points is kept where it runs along one surface seen at a grazing angle (either end point
+    lies, within ``jump`` / 2, on the line through the other and its outer neighbour). Elsewhere it
+    crosses an occluding edge, and two vertices go in: each beam's point at the shorter length. The
+    polygon then runs along the farther beam back to the nearer range instead of cutting across the
+    nearer return's shadow, where no beam went.
+    """
+    n = fx.size
+    step = np.abs(length[:-1] - length[1:]) > jump
+    j = np.flatnonzero(step)
+    if j.size == 0:
+        return fx, fy
+    tol = 0.5 * jump
+
+    def off_line(p: NDArray[np.intp], q: NDArray[np.intp], r: NDArray[np.intp]) -> NDArray[np.float64]:
+        """Distance of point r from the line through p and q (inf where p and q are under tol apart)."""
+        ux, uy = fx[q] - fx[p], fy[q] - fy[p]
+        norm = np.hypot(ux, uy)
+        cross = np.abs(ux * (fy[r] - fy[p]) - uy * (fx[r] - fx[p]))
+        return np.where(norm > tol, cross / np.maximum(norm, 1e-12), np.inf)
+
+    before = np.full(j.size, np.inf)
+    ok = j >= 1
+    before[ok] = off_line(j[ok] - 1, j[ok], j[ok] + 1)
+    after = np.full(j.size, np.inf)
+    ok = j + 2 < n
+    after[ok] = off_line(j[ok] + 2, j[ok] + 1, j[ok])
+    j = j[(before > tol) & (after > tol)]
+    if j.size == 0:
+        return fx, fy
+    step = np.zeros(n - 1, bool)
+    step[j] = True
+    m = np.minimum(length[j], length[j + 1])
+    ka = m / np.maximum(length[j], 1e-12)
+    kb = m / np.maximum(length[j + 1], 1e-12)
+    pos = np.arange(n)
+    pos[1:] += 2 * np.cumsum(step)
+    out_x = np.empty(n + 2 * j.size)
+    out_y = np.empty(n + 2 * j.size)
+    out_x[pos], out_y[pos] = fx, fy
+    out_x[pos[j] + 1], out_y[pos[j] + 1] = ox + ka * vx[j], oy + ka * vy[j]
+    out_x[pos[j] + 2], out_y[pos[j] + 2] = ox + kb * vx[j + 1], oy + kb * vy[j + 1]
+    return out_x, out_y
 
 
 def _bump(flat: NDArray[np.uint16], idx: NDArray[np.intp]) -> None:

@@ -746,9 +746,10 @@ class GridConfig(_Model):
     free_erode: bool = Field(True, description="erode each scan's free space by one cell, so rays grazing a "
                                                "surface do not clear it")
     free_shadows: bool = Field(True, description="between two neighbouring beams whose ranges differ by more "
-                                                 "than two cells, free space reaches only the nearer return: the "
-                                                 "wedge beyond it is that return's shadow (behind an object's "
-                                                 "edge, along a face seen at a grazing angle), not seen free")
+                                                 "than two cells, free space reaches only the nearer return when "
+                                                 "it is the edge of something wider than a leg (25 cm) and the "
+                                                 "two end points are not on one surface seen at a grazing angle: "
+                                                 "the wedge beyond it is that object's shadow, not seen free")
     dropout_guard: int = Field(2, ge=0, le=1000, description="a beam without a return whose neighbours within this "
                                                     "many beams on both sides returned is a dropout: it "
                                                     "clears no further than they do (0: off)")

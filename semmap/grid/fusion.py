@@ -66,6 +66,10 @@ log = logging.getLogger(__name__)
 N_MOBILITY = len(Mobility)
 
 _SHIFT = 4  # fractional bits of the polygon vertices handed to cv2.fillPoly
+#: m: an occluding edge casts a shadow free space keeps out of when the return before it spans more
+#: than this (a couch's arm, a box, a door frame); behind a person's leg or a post it is narrower
+#: than the gap between two beams, and the legs of someone who stood there must be seen free again
+_LEG_WIDTH = 0.25
 _U16_MAX = np.iinfo(np.uint16).max
 _KERNEL3 = np.ones((3, 3), np.uint8)
 LOG_ODDS_STEP = 1e-3  #: the resolution log-odds are kept at (l_occ, l_free and the clamps are rounded to it)
@@ -429,7 +433,7 @@ class SemanticGrid:
         if cfg.free_shadows and fx.size > 1:
             # between two neighbouring beams whose free lengths differ by more than two cells, free
             # space reaches only the nearer: the wedge beyond it is that return's shadow
-            fx, fy = _shadowed(fx, fy, ox_m, oy_m, scale * rx, scale * ry, free_len, 2.0 * res)
+            fx, fy = _shadowed(fx, fy, ox_m, oy_m, scale * rx, scale * ry, free_len, 2.0 * res, _LEG_WIDTH)
         verts = np.empty((fx.size + 1, 2), np.int32)
         verts[0] = round((ox_m - bx) * f), round((oy_m - by) * f)
         np.rint((fx - bx) * f, out=verts[1:, 0], casting="unsafe")
@@ -667,7 +671,7 @@ def merge_continued(head: GridLayers, tail: SemanticGrid) -> GridLayers:
 
 
 def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: float, vx: NDArray[np.float64],
-              vy: NDArray[np.float64], length: NDArray[np.float64], jump: float
+              vy: NDArray[np.float64], length: NDArray[np.float64], jump: float, min_width: float
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The free polygon's vertices (after the origin), stepping back at each occluding edge.
 
@@ -700,6 +704,24 @@ def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: f
     ok = j + 2 < n
     after[ok] = off_line(j[ok] + 2, j[ok] + 1, j[ok])
     j = j[(before > tol) & (after > tol)]
+    if j.size == 0:
+        return fx, fy
+    # the nearer return's run of beams (neighbours within ``jump`` of each other): an occluding
+    # edge of something wider than a person's leg, whose faces run on behind it. Behind a leg, a
+    # post or a person the shadow is narrower than the gap between two beams there
+    brk = np.flatnonzero(np.abs(length[:-1] - length[1:]) > jump)
+    run = np.zeros(n, np.intp)
+    run[brk + 1] = 1
+    run = np.cumsum(run)
+    first = np.concatenate([[0], brk + 1])
+    last = np.concatenate([brk, [n - 1]])
+    width = np.hypot(fx[last] - fx[first], fy[last] - fy[first])
+    near = np.where(length[j] <= length[j + 1], j, j + 1)
+    # or a face seen at a grazing angle, receding from the beam on the near return's other side
+    other = np.clip(np.where(near == j, j - 1, j + 2), 0, n - 1)
+    apart = np.hypot(fx[other] - fx[near], fy[other] - fy[near])
+    receding = (length[other] < length[near] - jump) & (apart > min_width)
+    j = j[(width[run[near]] > min_width) | receding]
     if j.size == 0:
         return fx, fy
     step = np.zeros(n - 1, bool)

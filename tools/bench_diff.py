@@ -10,7 +10,7 @@ with `semmap build`, B's map is diffed against A's with `semmap diff`'s own alig
 nothing changed.
 
 The random pairs' seeds are the scoring seeds (1000 and up), never used while developing (that
-used 100-199). Tours and maps are kept in ``--work`` and reused when present.
+used 100-299). Tours and maps are kept in ``--work`` and reused when present.
 
     python tools/bench_diff.py                               # named + 8 random pairs, ~35 min
     python tools/bench_diff.py --pairs ward random:1001      # some pairs

@@ -63,7 +63,7 @@ def dominant_direction(occupied: NDArray[np.bool_], spec: GridSpec) -> float:
     a = float(best)
     a = a - math.pi / 2 if a >= math.pi / 4 else a + math.pi / 2 if a < -math.pi / 4 else a
     # within the search's own precision of the axes the map is straight already: no resampling for nothing
-    return 0.0 if abs(a) < math.radians(0.25) else a
+    return 0.0 if abs(a) <= math.radians(0.25) + 1e-9 else a
 
 
 def rotated_spec(spec: GridSpec, keep: NDArray[np.bool_], T: NDArray[np.float64]) -> GridSpec:

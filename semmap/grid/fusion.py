@@ -431,8 +431,9 @@ class SemanticGrid:
         f = (1 << _SHIFT) / res
         bx, by = gx + res * (c0 + 0.5), gy + res * (r0 + 0.5)
         if cfg.free_shadows and fx.size > 1:
-            # between two neighbouring beams whose free lengths differ by more than two cells, free
-            # space reaches only the nearer: the wedge beyond it is that return's shadow
+            # between two neighbouring beams whose free lengths differ by more than two cells at the
+            # edge of something wider than a leg, free space reaches only the nearer: the wedge
+            # beyond it is that edge's shadow
             fx, fy = _shadowed(fx, fy, ox_m, oy_m, scale * rx, scale * ry, free_len, 2.0 * res, _LEG_WIDTH)
         verts = np.empty((fx.size + 1, 2), np.int32)
         verts[0] = round((ox_m - bx) * f), round((oy_m - by) * f)
@@ -676,17 +677,18 @@ def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: f
     """The free polygon's vertices (after the origin), stepping back at each occluding edge.
 
     ``fx, fy``: each beam's free end point; ``(vx, vy)``: the beam's vector to it (length ``length``).
-    Between beams i and i+1 whose lengths differ by more than ``jump``, the straight edge between
-    their end points is kept where it runs along one surface seen at a grazing angle (either end point
-    lies, within ``jump`` / 2, on the line through the other and its outer neighbour). Elsewhere it
-    crosses an occluding edge, and two vertices go in: each beam's point at the shorter length. The
-    polygon then runs along the farther beam back to the nearer range instead of cutting across the
-    nearer return's shadow, where no beam went.
+    Between beams i and i+1 whose lengths differ by more than ``jump`` the straight edge between their
+    end points is kept where it runs along one surface seen at a grazing angle (either end point lies,
+    within ``jump`` / 2, on the line through the other and its outer neighbour), and where the nearer
+    return is something no wider than ``min_width`` (a leg, a post: its shadow is narrower than the
+    gap between the beams). Elsewhere it crosses the shadow of an occluding edge (the nearer return's
+    run of beams spans more than ``min_width``, or it is a face receding from its other neighbour), and
+    two vertices go in: each beam's point at the shorter length. The polygon then runs along the
+    farther beam back to the nearer range, where no beam went beyond.
     """
     n = fx.size
-    step = np.abs(length[:-1] - length[1:]) > jump
-    j = np.flatnonzero(step)
-    if j.size == 0:
+    brk = np.flatnonzero(np.abs(length[:-1] - length[1:]) > jump)  # runs of beams end here
+    if brk.size == 0:
         return fx, fy
     tol = 0.5 * jump
 
@@ -697,19 +699,16 @@ def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: f
         cross = np.abs(ux * (fy[r] - fy[p]) - uy * (fx[r] - fx[p]))
         return np.where(norm > tol, cross / np.maximum(norm, 1e-12), np.inf)
 
-    before = np.full(j.size, np.inf)
-    ok = j >= 1
-    before[ok] = off_line(j[ok] - 1, j[ok], j[ok] + 1)
-    after = np.full(j.size, np.inf)
-    ok = j + 2 < n
-    after[ok] = off_line(j[ok] + 2, j[ok] + 1, j[ok])
-    j = j[(before > tol) & (after > tol)]
+    before = np.full(brk.size, np.inf)
+    ok = brk >= 1
+    before[ok] = off_line(brk[ok] - 1, brk[ok], brk[ok] + 1)
+    after = np.full(brk.size, np.inf)
+    ok = brk + 2 < n
+    after[ok] = off_line(brk[ok] + 2, brk[ok] + 1, brk[ok])
+    j = brk[(before > tol) & (after > tol)]
     if j.size == 0:
         return fx, fy
-    # the nearer return's run of beams (neighbours within ``jump`` of each other): an occluding
-    # edge of something wider than a person's leg, whose faces run on behind it. Behind a leg, a
-    # post or a person the shadow is narrower than the gap between two beams there
-    brk = np.flatnonzero(np.abs(length[:-1] - length[1:]) > jump)
+    # the nearer return's run of beams: the edge of something wider than a person's leg
     run = np.zeros(n, np.intp)
     run[brk + 1] = 1
     run = np.cumsum(run)
@@ -724,13 +723,13 @@ def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: f
     j = j[(width[run[near]] > min_width) | receding]
     if j.size == 0:
         return fx, fy
-    step = np.zeros(n - 1, bool)
-    step[j] = True
+    stepped = np.zeros(n - 1, bool)
+    stepped[j] = True
     m = np.minimum(length[j], length[j + 1])
     ka = m / np.maximum(length[j], 1e-12)
     kb = m / np.maximum(length[j + 1], 1e-12)
     pos = np.arange(n)
-    pos[1:] += 2 * np.cumsum(step)
+    pos[1:] += 2 * np.cumsum(stepped)
     out_x = np.empty(n + 2 * j.size)
     out_y = np.empty(n + 2 * j.size)
     out_x[pos], out_y[pos] = fx, fy

@@ -434,7 +434,7 @@ class SemanticGrid:
             # between two neighbouring beams whose free lengths differ by more than two cells at the
             # edge of something wider than a leg, free space reaches only the nearer: the wedge
             # beyond it is that edge's shadow
-            fx, fy = _shadowed(fx, fy, ox_m, oy_m, scale * rx, scale * ry, free_len, 2.0 * res, _LEG_WIDTH)
+            fx, fy = _shadowed(fx, fy, ox_m, oy_m, free_len, 2.0 * res, _LEG_WIDTH)
         verts = np.empty((fx.size + 1, 2), np.int32)
         verts[0] = round((ox_m - bx) * f), round((oy_m - by) * f)
         np.rint((fx - bx) * f, out=verts[1:, 0], casting="unsafe")
@@ -671,12 +671,11 @@ def merge_continued(head: GridLayers, tail: SemanticGrid) -> GridLayers:
     )
 
 
-def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: float, vx: NDArray[np.float64],
-              vy: NDArray[np.float64], length: NDArray[np.float64], jump: float, min_width: float
-              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: float, length: NDArray[np.float64],
+              jump: float, min_width: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The free polygon's vertices (after the origin), stepping back at each occluding edge.
 
-    ``fx, fy``: each beam's free end point; ``(vx, vy)``: the beam's vector to it (length ``length``).
+    ``fx, fy``: each beam's free end point, ``length`` from the sensor at ``(ox, oy)``.
     Between beams i and i+1 whose lengths differ by more than ``jump`` the straight edge between their
     end points is kept where it runs along one surface seen at a grazing angle (either end point lies,
     within ``jump`` / 2, on the line through the other and its outer neighbour), and where the nearer
@@ -725,6 +724,7 @@ def _shadowed(fx: NDArray[np.float64], fy: NDArray[np.float64], ox: float, oy: f
         return fx, fy
     stepped = np.zeros(n - 1, bool)
     stepped[j] = True
+    vx, vy = fx - ox, fy - oy
     m = np.minimum(length[j], length[j + 1])
     ka = m / np.maximum(length[j], 1e-12)
     kb = m / np.maximum(length[j + 1], 1e-12)

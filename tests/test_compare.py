@@ -283,6 +283,45 @@ def test_a_face_one_session_saw_only_edge_on_is_no_change_and_a_new_thin_wall_ac
     assert np.all(np.abs(added[:, 0] - 7.0) < 0.1)
 
 
+def test_a_moved_chair_whose_camera_labelled_two_of_its_legs_is_one_move():
+    # A saw a chair the camera never labelled (four static legs). It moved 1.56 m; B's camera labelled
+    # two of its legs, the LiDAR alone saw the other two (static, in no object). The chair in B's list
+    # holds two legs, which fit anything; with the two beside it, four legs fit A's four
+    a, b = Room(), Room()
+    a.unlabelled.append(("chair", (3.0, 3.0), (0.45, 0.45), 0.0))
+    b.objects.append(("chair", (4.2, 4.0), (0.45, 0.45), 0.0))
+    b.unseen_legs[0] = (2, 3)
+    for leg in b.legs((4.2, 4.0), (0.45, 0.45), 0.0)[2:]:
+        b.walls.append((leg[0] - 0.02, leg[1], leg[0] + 0.02, leg[1]))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["object_appeared"] == 0, counts
+    assert counts["static_added"] == counts["static_removed"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert mv.displacement_m == pytest.approx(math.hypot(1.2, 1.0), abs=0.05)
+
+
+def test_a_new_cabinet_on_floor_the_first_session_saw_in_stripes_is_added():
+    # far from A's robot its beams fanned out and left bands of unknown two cells wide between the
+    # stretches of floor they saw (random:200). B found a cabinet standing there at 45°, two faces of
+    # it seen. Those bands are not what A never observed: the faces are new, not faces A saw edge-on
+    a, b = Room(), Room()
+    for y in np.arange(2.0, 5.0, 0.25):
+        a.unseen.append((3.0, y, 7.0, y + 0.1))
+    c, u, v = np.array([5.0, 3.5]), np.array([1.0, 1.0]) / math.sqrt(2), np.array([-1.0, 1.0]) / math.sqrt(2)
+    p0, p1, p2 = c - 0.6 * u - 0.25 * v, c + 0.6 * u - 0.25 * v, c + 0.6 * u + 0.25 * v
+    b.walls += [(*p0, *p1), (*p1, *p2)]
+    r = _diff(a, b)
+    assert r.left_out["hidden_faces"] == 0
+    assert r.counts()["static_added"] >= 1, r.counts()
+    added = _mask_world(r, 1)
+    along = (added - p0) @ u
+    across = np.abs((added - p0) @ v)
+    face = added[(across < 0.1) & (along > -0.05) & (along < 1.25)]
+    assert face.shape[0] >= 15 and np.ptp(face @ u) >= 1.0, face.shape
+
+
 def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a_dropped_leg_is():
     occ = np.zeros((20, 20), bool)
     dropped = np.zeros_like(occ)

@@ -1025,6 +1025,39 @@ def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people:
     return out
 
 
+def _with_legs(o: _Obj, legs: NDArray[np.bool_], spec: GridSpec, size_of: Any) -> _Obj:
+    """The object with the pieces of ``legs`` (its session's changed leg-sized obstacles that no camera
+    labelled, or that its build gave another object) within its class's typical length of it, while
+    the whole stays within 1.1 times that length: a chair whose camera labelled two of its legs, the
+    other two seen by the LiDAR alone or grouped with the bed beside it."""
+    if o.cells.shape[0] == 0 or not o.src.class_name or not legs.any():
+        return o
+    res = spec.resolution
+    length = float(size_of(o.src.class_name))
+    m = int(math.ceil(length / res)) + 1
+    r0, c0 = max(0, int(o.cells[:, 0].min()) - m), max(0, int(o.cells[:, 1].min()) - m)
+    r1 = min(spec.height, int(o.cells[:, 0].max()) + m + 1)
+    c1 = min(spec.width, int(o.cells[:, 1].max()) + m + 1)
+    win = legs[r0:r1, c0:c1].copy()
+    win[o.cells[:, 0] - r0, o.cells[:, 1] - c0] = False
+    if not win.any():
+        return o
+    lab, n = ndimage.label(win, structure=np.ones((3, 3), bool))
+    oxy = _cells_xy(o.cells, spec)
+    out = o.cells
+    for k in range(1, n + 1):
+        rr, cc = np.nonzero(lab == k)
+        piece = np.stack([rr + r0, cc + c0], axis=1)
+        if float(np.min(np.linalg.norm(_cells_xy(piece, spec)[:, None] - oxy[None], axis=2))) > length:
+            continue
+        cand = np.unique(np.concatenate([out, piece]), axis=0)
+        if _piece_box(cand, spec)[1] <= 1.1 * length + res:
+            out = cand
+    if out.shape[0] == o.cells.shape[0]:
+        return o
+    return _Obj(o.src, o.centroid, o.yaw, o.footprint, out)
+
+
 def _small_blobs(occ: NDArray[np.bool_], max_cells: int) -> NDArray[np.bool_]:
     """Obstacles of at most ``max_cells`` cells (8-connected): legs of furniture, posts, not walls."""
     lab, n = ndimage.label(occ, structure=np.ones((3, 3), bool))
@@ -1191,14 +1224,22 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         rem_b = remnant(objs_b, new_ids, new_cells)
         sides = ((only_a, gone, ((added_raw & off_semi_b) | rem_b) & ~lo.dyn_b, True, obst_b & off_semi_b),
                  (only_b, new, ((removed_raw & off_semi_a) | rem_a) & ~lo.dyn_a, False, obst_a & off_semi_a))
+        # (an object takes its own session's changed legs within its length that no camera labelled, or
+        # that its build put in another object that stayed: two legs a camera labelled and two the LiDAR
+        # alone saw, or two its build gave the bed beside it, are one chair, whose four legs fit the
+        # other end's)
+        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
+        own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & _small_blobs(lo.occ_a, leg_cells),
+                    False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & _small_blobs(lo.occ_b, leg_cells)}
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
-            partners = _unlabelled_partners([objs_all[i] for i in objs_idx], _pieces(changed, spec, group), spec,
+            whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
+            partners = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group), spec,
                                             st, in_a, other)
             moved += partners
             done = {id(p[0] if in_a else p[1]) for p in partners}
-            objs_idx[:] = [i for i in objs_idx if id(objs_all[i]) not in done]
+            objs_idx[:] = [i for i in objs_idx if id(whole[i]) not in done]
         # and furniture neither camera labelled (beside the path in both tours) moved when a piece of
         # A's removed cells fits one of B's added cells, legs on legs; the pieces the moves above
         # took are theirs
@@ -1220,7 +1261,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # flagged movable, and obstacles small enough to be a leg (the camera may not have labelled it)
         b_floor = lo.free_b & ~_dilate(lo.occ_b, 1.5)
         b_contra = b_floor | ~_dilate(obs_b, 0.5 / res)
-        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
         furn_a = _dilate(semi_a | _small_blobs(lo.occ_a, leg_cells), 1.5) if moved else semi_a
         furn_b = _dilate(semi_b | _small_blobs(lo.occ_b, leg_cells), 1.5) if moved else semi_b
 
@@ -1353,7 +1393,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # front 20 cm out from where the other session saw it is the couch pulled from the wall)
         faces = _strips_along(labels, slices, ids, other_occ & ~other_semi, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
-        hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0)
+        # (floor the other session saw in stripes, bands of unknown a few cells wide between its rays fanning
+        # out far away, counts as seen: a face along such a band is new, not one it saw only edge-on)
+        seen_other = cv2.morphologyEx((other_occ | other_free).astype(np.uint8), cv2.MORPH_CLOSE, _disk(1.5)) > 0
+        hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~seen_other, 2.0)
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]

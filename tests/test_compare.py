@@ -305,7 +305,7 @@ def test_a_moved_chair_whose_camera_labelled_two_of_its_legs_is_one_move():
 def test_a_new_cabinet_on_floor_the_first_session_saw_in_stripes_is_added():
     # far from A's robot its beams fanned out and left bands of unknown two cells wide between the
     # stretches of floor they saw (random:200). B found a cabinet standing there at 45°, two faces of
-    # it seen. Those bands are not what A never observed: the faces are new, not faces A saw edge-on
+    # it seen. Those bands cross the faces: the faces are new, not faces A saw edge-on
     a, b = Room(), Room()
     for y in np.arange(2.0, 5.0, 0.25):
         a.unseen.append((3.0, y, 7.0, y + 0.1))
@@ -320,6 +320,20 @@ def test_a_new_cabinet_on_floor_the_first_session_saw_in_stripes_is_added():
     across = np.abs((added - p0) @ v)
     face = added[(across < 0.1) & (along > -0.05) & (along < 1.25)]
     assert face.shape[0] >= 15 and np.ptp(face @ u) >= 1.0, face.shape
+
+
+def test_a_thin_partition_the_second_session_saw_only_edge_on_is_no_change():
+    # A saw both faces of a 10 cm partition. B drove along both sides of it: its beams grazed the
+    # faces and marked them free, and only the partition's inside, a band two cells wide, stayed
+    # unobserved. Nothing changed. (Counting floor seen in stripes, bands of unknown two cells wide
+    # between far rays, as observed, made such a band observed too, and the partition removed.)
+    a, b = Room(), Room()
+    a.walls += [(5.0, 2.0, 5.0, 6.0), (5.1, 2.0, 5.1, 6.0)]
+    b.unseen.append((5.02, 2.0, 5.08, 6.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["static_removed"] == 0, counts
+    assert not (r.mask == 2).any()
 
 
 def test_cells_cleaning_dropped_along_a_face_seen_obliquely_are_not_people_but_a_dropped_leg_is():

@@ -1074,7 +1074,7 @@ def _thin(piece: NDArray[np.bool_]) -> bool:
 
 
 def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | None], ids: list[int],
-                  near: NDArray[np.bool_], band_cells: float) -> set[int]:
+                  near: NDArray[np.bool_], band_cells: float, max_parts: int | None = None) -> set[int]:
     """The pieces (label ids) at most two cells thick lying, for at least 80 % of their cells, within
     ``band_cells`` of ``near``. Two uses:
 
@@ -1084,6 +1084,9 @@ def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | 
     * a face the other session saw only edge-on (``near``: what it never observed, within two cells:
       the inside of a pillar it saw two faces of). Its beams grazed along the face, marking the cells
       on it free at a 5 cm grid; a new wall across floor the other session saw has floor on both sides.
+      What it never observed lies along such a face, in one or two pieces (``max_parts``): bands of
+      unknown crossing a piece, three or more, are floor the other session saw in stripes between
+      rays fanning out far away, and the piece (a new cabinet standing there) is a change.
     """
     if not ids:
         return set()
@@ -1100,8 +1103,16 @@ def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | 
         r0, c0 = max(0, sl[0].start - m), max(0, sl[1].start - m)
         around = _dilate(near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)], band_cells)
         band = around[sl[0].start - r0:sl[0].stop - r0, sl[1].start - c0:sl[1].stop - c0]
-        if float(band[piece].mean()) >= 0.8:
-            out.add(k)
+        if float(band[piece].mean()) < 0.8:
+            continue
+        if max_parts is not None:
+            own = np.zeros(around.shape, bool)
+            own[sl[0].start - r0:sl[0].stop - r0, sl[1].start - c0:sl[1].stop - c0] = piece
+            beside = near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)] & _dilate(own, band_cells)
+            # (a cell's gap bridged: a band rasterised from another map's turned grid breaks up)
+            if ndimage.label(_dilate(beside, 1.5), structure=np.ones((3, 3), bool))[1] > max_parts:
+                continue
+        out.add(k)
     return out
 
 
@@ -1393,10 +1404,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # front 20 cm out from where the other session saw it is the couch pulled from the wall)
         faces = _strips_along(labels, slices, ids, other_occ & ~other_semi, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
-        # (floor the other session saw in stripes, bands of unknown a few cells wide between its rays fanning
-        # out far away, counts as seen: a face along such a band is new, not one it saw only edge-on)
-        seen_other = cv2.morphologyEx((other_occ | other_free).astype(np.uint8), cv2.MORPH_CLOSE, _disk(1.5)) > 0
-        hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~seen_other, 2.0)
+        hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0, 2)
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]

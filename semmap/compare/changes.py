@@ -1240,8 +1240,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # alone saw, or two its build gave the bed beside it, are one chair, whose four legs fit the
         # other end's)
         leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
-        own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & _small_blobs(lo.occ_a, leg_cells),
-                    False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & _small_blobs(lo.occ_b, leg_cells)}
+        legs_a, legs_b = _small_blobs(lo.occ_a, leg_cells), _small_blobs(lo.occ_b, leg_cells)
+        own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & legs_a,
+                    False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & legs_b}
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
@@ -1272,8 +1273,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # flagged movable, and obstacles small enough to be a leg (the camera may not have labelled it)
         b_floor = lo.free_b & ~_dilate(lo.occ_b, 1.5)
         b_contra = b_floor | ~_dilate(obs_b, 0.5 / res)
-        furn_a = _dilate(semi_a | _small_blobs(lo.occ_a, leg_cells), 1.5) if moved else semi_a
-        furn_b = _dilate(semi_b | _small_blobs(lo.occ_b, leg_cells), 1.5) if moved else semi_b
+        furn_a = _dilate(semi_a | legs_a, 1.5) if moved else semi_a
+        furn_b = _dilate(semi_b | legs_b, 1.5) if moved else semi_b
 
         def lookup(img: NDArray[np.bool_], xy: NDArray[np.float64], outside: bool) -> NDArray[np.bool_]:
             c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)

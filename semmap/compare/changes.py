@@ -816,32 +816,39 @@ def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
     return m > 0
 
 
+def _joined(cells: NDArray[np.intp], loose: NDArray[np.bool_], spec: GridSpec, reach: float, limit: float,
+            margin: int) -> NDArray[np.intp]:
+    """``cells`` (n, 2) with the pieces of ``loose`` (8-connected, within ``margin`` cells of them) that
+    come within ``reach`` cells of them, each while the smallest box around the whole stays at most
+    ``limit`` m long."""
+    if cells.shape[0] == 0 or not loose.any():
+        return cells
+    r0, c0 = max(0, int(cells[:, 0].min()) - margin), max(0, int(cells[:, 1].min()) - margin)
+    r1 = min(spec.height, int(cells[:, 0].max()) + margin + 1)
+    c1 = min(spec.width, int(cells[:, 1].max()) + margin + 1)
+    win = loose[r0:r1, c0:c1]
+    if not win.any():
+        return cells
+    lab, _ = ndimage.label(win, structure=np.ones((3, 3), bool))
+    own = np.zeros(win.shape, bool)
+    own[cells[:, 0] - r0, cells[:, 1] - c0] = True
+    near = np.unique(lab[_dilate(own, reach) & (lab > 0)])
+    out = cells
+    for k in near.tolist():
+        rr, cc = np.nonzero(lab == k)
+        cand = np.unique(np.concatenate([out, np.stack([rr + r0, cc + c0], axis=1)]), axis=0)
+        if _piece_box(cand, spec)[1] <= limit:
+            out = cand
+    return out
+
+
 def _with_touching(o: _Obj, loose: NDArray[np.bool_], spec: GridSpec, size_of: Any) -> NDArray[np.intp]:
     """The object's cells and the pieces of ``loose`` (changed cells no camera labelled) that touch them
     (within three cells) while the whole stays within 1.3 times the object's length (its class's typical
     one, or what its session saw)."""
-    if o.cells.shape[0] == 0 or not loose.any():
-        return o.cells
     res = spec.resolution
     length = max(*o.src.size, size_of(o.src.class_name) if o.src.class_name else 0.0)
-    m = int(math.ceil(1.3 * length / res)) + 3
-    r0, c0 = max(0, int(o.cells[:, 0].min()) - m), max(0, int(o.cells[:, 1].min()) - m)
-    r1 = min(spec.height, int(o.cells[:, 0].max()) + m + 1)
-    c1 = min(spec.width, int(o.cells[:, 1].max()) + m + 1)
-    win = loose[r0:r1, c0:c1]
-    if not win.any():
-        return o.cells
-    lab, _ = ndimage.label(win, structure=np.ones((3, 3), bool))
-    own = np.zeros(win.shape, bool)
-    own[o.cells[:, 0] - r0, o.cells[:, 1] - c0] = True
-    touching = np.unique(lab[_dilate(own, 3.0) & (lab > 0)])
-    out = o.cells
-    for k in touching.tolist():
-        rr, cc = np.nonzero(lab == k)
-        cand = np.unique(np.concatenate([out, np.stack([rr + r0, cc + c0], axis=1)]), axis=0)
-        if _piece_box(cand, spec)[1] <= 1.3 * length + 2 * res:
-            out = cand
-    return out
+    return _joined(o.cells, loose, spec, 3.0, 1.3 * length + 2 * res, int(math.ceil(1.3 * length / res)) + 3)
 
 
 def _elongated(o: _Obj) -> bool:
@@ -1030,32 +1037,12 @@ def _with_legs(o: _Obj, legs: NDArray[np.bool_], spec: GridSpec, size_of: Any) -
     labelled, or that its build gave another object) within its class's typical length of it, while
     the whole stays within 1.1 times that length: a chair whose camera labelled two of its legs, the
     other two seen by the LiDAR alone or grouped with the bed beside it."""
-    if o.cells.shape[0] == 0 or not o.src.class_name or not legs.any():
+    if not o.src.class_name:
         return o
     res = spec.resolution
     length = float(size_of(o.src.class_name))
-    m = int(math.ceil(length / res)) + 1
-    r0, c0 = max(0, int(o.cells[:, 0].min()) - m), max(0, int(o.cells[:, 1].min()) - m)
-    r1 = min(spec.height, int(o.cells[:, 0].max()) + m + 1)
-    c1 = min(spec.width, int(o.cells[:, 1].max()) + m + 1)
-    win = legs[r0:r1, c0:c1].copy()
-    win[o.cells[:, 0] - r0, o.cells[:, 1] - c0] = False
-    if not win.any():
-        return o
-    lab, n = ndimage.label(win, structure=np.ones((3, 3), bool))
-    oxy = _cells_xy(o.cells, spec)
-    out = o.cells
-    for k in range(1, n + 1):
-        rr, cc = np.nonzero(lab == k)
-        piece = np.stack([rr + r0, cc + c0], axis=1)
-        if float(np.min(np.linalg.norm(_cells_xy(piece, spec)[:, None] - oxy[None], axis=2))) > length:
-            continue
-        cand = np.unique(np.concatenate([out, piece]), axis=0)
-        if _piece_box(cand, spec)[1] <= 1.1 * length + res:
-            out = cand
-    if out.shape[0] == o.cells.shape[0]:
-        return o
-    return _Obj(o.src, o.centroid, o.yaw, o.footprint, out)
+    cells = _joined(o.cells, legs, spec, length / res, 1.1 * length + res, int(math.ceil(length / res)) + 1)
+    return o if cells.shape[0] == o.cells.shape[0] else _Obj(o.src, o.centroid, o.yaw, o.footprint, cells)
 
 
 def _small_blobs(occ: NDArray[np.bool_], max_cells: int) -> NDArray[np.bool_]:
@@ -1101,14 +1088,15 @@ def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | 
         if not _thin(piece):
             continue
         r0, c0 = max(0, sl[0].start - m), max(0, sl[1].start - m)
-        around = _dilate(near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)], band_cells)
+        win = near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)]
+        around = _dilate(win, band_cells)
         band = around[sl[0].start - r0:sl[0].stop - r0, sl[1].start - c0:sl[1].stop - c0]
         if float(band[piece].mean()) < 0.8:
             continue
         if max_parts is not None:
             own = np.zeros(around.shape, bool)
             own[sl[0].start - r0:sl[0].stop - r0, sl[1].start - c0:sl[1].stop - c0] = piece
-            beside = near[r0:min(h, sl[0].stop + m), c0:min(w, sl[1].stop + m)] & _dilate(own, band_cells)
+            beside = win & _dilate(own, band_cells)
             # (a cell's gap bridged: a band rasterised from another map's turned grid breaks up)
             if ndimage.label(_dilate(beside, 1.5), structure=np.ones((3, 3), bool))[1] > max_parts:
                 continue

@@ -322,6 +322,26 @@ def test_a_new_cabinet_on_floor_the_first_session_saw_in_stripes_is_added():
     assert face.shape[0] >= 15 and np.ptp(face @ u) >= 1.0, face.shape
 
 
+def test_a_new_cabinets_face_seen_at_a_grazing_angle_is_added_along_its_faint_cells():
+    # B drove along a corridor past a new cabinet: its short end faced the robot and is occupied,
+    # its 1.6 m long face was seen edge-on, so rays grazing it cleared all but a few cells; beams
+    # ended on the rest again and again (faint obstacles). A saw the floor free. The long face is new
+    # along its length, not just where the map kept a cell of it (random:142)
+    a, b = Room(), Room()
+    b.walls.append((6.0, 3.0, 6.0, 3.5))  # the end facing the robot
+    for x in (4.4, 5.0, 5.6):
+        b.walls.append((x, 3.0, x + 0.05, 3.0))  # cells of the long face the map kept
+    b.faint_legs += [(x, 3.0) for x in np.arange(4.4, 6.0, 0.05)]
+    r = _diff(a, b)
+    added = _mask_world(r, 1)
+    face = added[(np.abs(added[:, 1] - 3.0) < 0.06) & (added[:, 0] < 5.95)]
+    assert np.ptp(face[:, 0]) >= 1.4 and face.shape[0] >= 0.8 * 1.55 / RES, face.shape
+    # a person's trail of faint cells, with no obstacle of B's map beside it, stays no change
+    b2 = Room()
+    b2.faint_legs += [(x, 6.0) for x in np.arange(3.0, 5.0, 0.05)]
+    assert not (_diff(a, b2).mask == 1).any()
+
+
 def test_a_thin_partition_the_second_session_saw_only_edge_on_is_no_change():
     # A saw both faces of a 10 cm partition. B drove along both sides of it: its beams grazed the
     # faces and marked them free, and only the partition's inside, a band two cells wide, stayed

@@ -1370,11 +1370,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, voided, value, own_occ, other_occ, other_free, other_semi in (
+    for kind, cells, voided, value, own_occ, other_occ, other_free, other_semi, own_faint, other_near in (
             ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a,
-             lo.semi_a),
+             lo.semi_a, lo.faint_b, near_a),
             ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.occ_b,
-             lo.free_b, lo.semi_b)):
+             lo.free_b, lo.semi_b, lo.faint_a, near_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
         # when three or more stand within a table's span of each other: furniture, not noise. Legs
@@ -1406,6 +1406,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         reach = own_occ & other_free & ~on_objects & ~people & (mask == 0)
         for _ in range(int(math.ceil(tol))):
             shown |= _dilate(shown, 1.5) & reach
+        if own_faint is not None:
+            # and along its own faint obstacles: a face seen at a grazing angle is occupied where beams
+            # ended on it often enough and faint between (the rays that grazed it cleared it)
+            shown = _grow_faint(shown, own_faint & other_free & ~other_near & ~on_objects & ~people & (mask == 0))
         mask[shown] = value
 
     # floor only one session observed
@@ -1419,3 +1423,18 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     order = {t: i for i, t in enumerate(CHANGE_TYPES)}
     changes.sort(key=lambda c: (order[c.type], -c.area_m2))
     return changes, mask, left_out
+
+
+def _grow_faint(changed: NDArray[np.bool_], faint: NDArray[np.bool_], steps: int = 10) -> NDArray[np.bool_]:
+    """``changed`` grown along ``faint`` cells that touch it, up to ``steps`` cells: a face seen at a
+    grazing angle is occupied where beams ended on it often enough, and faint between (the rays that
+    grazed it cleared it), but it is one face."""
+    out = changed.copy()
+    if not faint.any() or not changed.any():
+        return out
+    for _ in range(steps):
+        grow = _dilate(out, 1.5) & faint & ~out
+        if not grow.any():
+            break
+        out |= grow
+    return out

@@ -341,6 +341,14 @@ def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.int
     return best
 
 
+#: a blob near a person's legs that holds at most this share of the smaller leg's cells, and is no wider
+#: than a leg may be narrow, is a thin furniture leg beside them, not a sign they are furniture
+_LEG_NEIGHBOUR_SHARE = 0.4
+#: ... when both legs are blobs too large to be a furniture leg (2-8 cm across): this many m² and this wide
+_LEG_MIN_AREA = 0.0125
+_LEG_MIN_EXTENT = 0.15
+
+
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
                cfg: CleaningConfig, semi: NDArray[np.float32], hits: NDArray[np.uint16],
                static_veto: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -379,14 +387,26 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     yy, xx = np.mgrid[-rad:rad + 1, -rad:rad + 1]
     disc = (xx * xx + yy * yy) * res * res <= reach * reach
 
-    def alone(p: NDArray[np.float64], blobs: Sequence[int]) -> bool:
-        """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame)."""
+    area = stats[:, cv2.CC_STAT_AREA]
+
+    def alone(p: NDArray[np.float64], blobs: Sequence[int], thin_near: bool = False) -> bool:
+        """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame); with
+        ``thin_near``, bar blobs far smaller than the smallest of them: a chair's thin leg, a cell or
+        two, beside two blobs of five cells or more does not make them a chair (its legs are alike)."""
         r, c = int(round(p[1] / res)), int(round(p[0] / res))
         r0, c0 = r - rad, c - rad
         win = lab[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]
         d = disc[max(r0, 0) - r0:max(r0, 0) - r0 + win.shape[0], max(c0, 0) - c0:max(c0, 0) - c0 + win.shape[1]]
         near = win[d & (win > 0) & ~structure[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]]
-        return bool(np.isin(near, blobs).all())
+        others = np.unique(near[~np.isin(near, blobs)])
+        if not others.size:
+            return True
+        own = list(blobs)
+        if (not thin_near or area[own].min() * res * res < _LEG_MIN_AREA - 1e-9
+                or w[own].min() < _LEG_MIN_EXTENT - 1e-9):
+            return False
+        small = (area[others] <= _LEG_NEIGHBOUR_SHARE * area[own].min()) & (w[others] <= lo)
+        return bool(small.all())
 
     person = np.zeros(n, bool)
     # two legs, two blobs
@@ -394,7 +414,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     if ids.size >= 2:
         d = np.hypot(xy[ids, None, 0] - xy[None, ids, 0], xy[ids, None, 1] - xy[None, ids, 1])
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
-            if alone(0.5 * (xy[ids[i]] + xy[ids[j]]), (ids[i], ids[j])):
+            if alone(0.5 * (xy[ids[i]] + xy[ids[j]]), (ids[i], ids[j]), thin_near=True):
                 person[ids[i]] = person[ids[j]] = True
     # two legs close together merge into one blob: a leg wide across, two legs long, with a waist
     # between them when seen from all around. A blob no longer than one leg is wide is two legs only

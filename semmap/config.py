@@ -812,9 +812,10 @@ class CleaningConfig(_Model):
     person_leg_veto_share: float = Field(0.015, ge=0, le=1, description="a blob shaped like a person's legs is "
                                                                          "furniture only when furniture labels are "
                                                                          "at least this share of its returns (or "
-                                                                         "structure labels say it is structure): a "
-                                                                         "few returns painted through a chair's "
-                                                                         "mask do not make a person a chair")
+                                                                         "structure labels say it is structure: "
+                                                                         "on two leg blobs apart, also as this "
+                                                                         "share): a few returns painted through a "
+                                                                         "chair's mask do not make a person a chair")
     transient_ratio: float = Field(2.0, ge=0, le=1000, description="an occupied cell no camera labelled, off the "
                                                                    "walls, that scans saw free at least this many "
                                                                    "times as often as they hit it is someone who "

@@ -351,14 +351,15 @@ _LEG_MIN_EXTENT = 0.15
 
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
                cfg: CleaningConfig, semi: NDArray[np.float32], hits: NDArray[np.uint16],
-               static_veto: NDArray[np.bool_]) -> NDArray[np.bool_]:
+               static_veto: NDArray[np.bool_], static: NDArray[Any] | None = None) -> NDArray[np.bool_]:
     """Cells of people no camera labelled, found by their legs: two isolated blobs a person's leg wide
     (``person_leg_width``), their centres ``person_leg_spacing`` apart, with nothing else near.
 
     At LiDAR height a standing person is two legs 10-16 cm wide about 20 cm apart; furniture legs
     are 2-8 cm wide and 40 cm or more apart, and each has neighbours (a chair's other legs). A blob
     touching anything else is part of a larger blob, and one carrying camera labels that say it is
-    something else is never a leg: labels of structure (``static_veto``), or labels of furniture
+    something else is never a leg: labels of structure (``static_veto``; for two leg blobs apart, only
+    when ``static`` hits are ``person_leg_veto_share`` of their ``hits`` too), or labels of furniture
     (``vetoed`` cells, their ``semi`` hits at least ``person_leg_veto_share`` of the blob's ``hits``).
     Walls (``structure``) and anything longer than ``structure_min_size`` may be near: people stand by
     walls, beds and counters.
@@ -370,14 +371,23 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     lo, hi = cfg.person_leg_width
     s_lo, s_hi = cfg.person_leg_spacing
     veto = np.bincount(lab[vetoed], minlength=n) > 0
+    pair_veto = veto
     if cfg.person_leg_veto_share > 0:
-        # furniture labels veto a blob when they are a share of its returns; structure labels always do
+        # furniture labels veto a blob when they are a share of its returns; structure labels always do,
+        # but on two leg blobs apart as a share too
         on = lab > 0
         t_semi = np.bincount(lab[on], semi[on], n)
         t_hits = np.bincount(lab[on], hits[on].astype(np.float64), n)
         veto &= t_semi >= cfg.person_leg_veto_share * t_hits
-        veto |= np.bincount(lab[static_veto], minlength=n) > 0
-    veto[0] = True
+        says_structure = np.bincount(lab[static_veto], minlength=n) > 0
+        pair_veto = veto | says_structure
+        if static is not None:
+            # but for two leg blobs apart (the stronger shape), structure labels veto as a share too: a
+            # person the camera missed in a few frames (5 "no mask" labels among 547 returns) is no post
+            pair_veto = veto | (says_structure & (np.bincount(lab[on], static[on].astype(np.float64), n)
+                                                  >= cfg.person_leg_veto_share * t_hits))
+        veto = veto | says_structure
+    veto[0] = pair_veto[0] = True
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
 
@@ -410,7 +420,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
 
     person = np.zeros(n, bool)
     # two legs, two blobs
-    ids = np.flatnonzero((w >= lo) & (w <= hi) & ~veto)
+    ids = np.flatnonzero((w >= lo) & (w <= hi) & ~pair_veto)
     if ids.size >= 2:
         d = np.hypot(xy[ids, None, 0] - xy[None, ids, 0], xy[ids, None, 1] - xy[None, ids, 1])
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
@@ -678,7 +688,7 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         # saw as one, standing behind a chair from the camera's side, takes a few returns painted through
         # the chair's mask (parallax) among hundreds; structure labels veto as they are
         legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg,
-                                       s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits))
+                                       s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits), s_static)
         if legs.any():
             dyn |= legs
             semi &= ~dyn

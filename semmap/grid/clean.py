@@ -371,22 +371,19 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     lo, hi = cfg.person_leg_width
     s_lo, s_hi = cfg.person_leg_spacing
     veto = np.bincount(lab[vetoed], minlength=n) > 0
-    pair_veto = veto
+    pair_veto = veto  # what vetoes two leg blobs apart
     if cfg.person_leg_veto_share > 0:
         # furniture labels veto a blob when they are a share of its returns; structure labels always do,
-        # but on two leg blobs apart as a share too
+        # except on two leg blobs apart (the stronger shape), where they must be that share too: a person
+        # the camera missed in a few frames (5 "no mask" labels among 547 returns) is no post
         on = lab > 0
-        t_semi = np.bincount(lab[on], semi[on], n)
-        t_hits = np.bincount(lab[on], hits[on].astype(np.float64), n)
-        veto &= t_semi >= cfg.person_leg_veto_share * t_hits
-        says_structure = np.bincount(lab[static_veto], minlength=n) > 0
-        pair_veto = veto | says_structure
+        share = cfg.person_leg_veto_share * np.bincount(lab[on], hits[on].astype(np.float64), n)
+        furniture = veto & (np.bincount(lab[on], semi[on], n) >= share)
+        built = np.bincount(lab[static_veto], minlength=n) > 0
+        veto = furniture | built
         if static is not None:
-            # but for two leg blobs apart (the stronger shape), structure labels veto as a share too: a
-            # person the camera missed in a few frames (5 "no mask" labels among 547 returns) is no post
-            pair_veto = veto | (says_structure & (np.bincount(lab[on], static[on].astype(np.float64), n)
-                                                  >= cfg.person_leg_veto_share * t_hits))
-        veto = veto | says_structure
+            built &= np.bincount(lab[on], static[on].astype(np.float64), n) >= share
+        pair_veto = furniture | built
     veto[0] = pair_veto[0] = True
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
@@ -686,7 +683,8 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         vetoed = (lab >= cfg.min_labelled_hits) & ~dyn_major
         # a blob's furniture labels count when they are a share of its returns: a person the camera never
         # saw as one, standing behind a chair from the camera's side, takes a few returns painted through
-        # the chair's mask (parallax) among hundreds; structure labels veto as they are
+        # the chair's mask (parallax) among hundreds; structure labels veto one blob as they are, two leg
+        # blobs apart as a share too
         legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg,
                                        s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits), s_static)
         if legs.any():

@@ -107,6 +107,34 @@ def _stop_signals_raise() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
+def _stop_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The stop signal (KeyboardInterrupt, :class:`~semmap.errors.Interrupted`) an exception was raised
+    while handling, if any: a ``ZipFile`` that Ctrl-C cut short inside ``np.savez`` refuses to close
+    ("open writing handle"), and that error, not the signal, reaches the top."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def _stopped(prog: str, args: argparse.Namespace, exc: KeyboardInterrupt, n_committed: int) -> int:
+    """The exit of a command a stop signal ended: one line and 128 + the signal, or 0 when the signal
+    came once the output was complete."""
+    signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).expanduser().resolve() in COMMITTED[n_committed:]:
+        # the signal came once the output was complete: the command did its job
+        print(f"{prog}: {signal.Signals(signum).name} arrived after {out} was complete", file=sys.stderr)
+        return 0
+    print(f"{prog}: {'interrupted' if signum == signal.SIGINT else 'terminated'} "
+          f"({signal.Signals(signum).name})", file=sys.stderr)
+    return 128 + int(signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -118,35 +146,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         with _stop_signals_raise():
             code = int(args.run(args) or 0)
         return code
-    except SemmapError as exc:
-        if args.debug:
-            raise
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except OSError as exc:  # unwritable output, full disk...: the message names the path
-        if args.debug:
-            raise
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP raised as Interrupted
-        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
-        out = getattr(args, "out", None)
-        if out is not None and Path(out).expanduser().resolve() in COMMITTED[n_committed:]:
-            # the signal came once the output was complete: the command did its job
-            print(f"{prog}: {signal.Signals(signum).name} arrived after {out} was complete", file=sys.stderr)
-            return 0
-        print(f"{prog}: {'interrupted' if signum == signal.SIGINT else 'terminated'} "
-              f"({signal.Signals(signum).name})", file=sys.stderr)
-        return 128 + int(signum)
-    except InternalError as exc:  # a bug in a worker process; its traceback is the cause
-        if args.debug:
-            raise
-        print(f"{prog}: internal error {exc} (run again with --debug for the traceback, and please report it)",
-              file=sys.stderr)
-        return EXIT_INTERNAL
+        return _stopped(prog, args, exc, n_committed)
     except Exception as exc:
+        stop = _stop_behind(exc)
+        if stop is not None:  # an error of the unwinding a stop signal started: the signal is what happened
+            return _stopped(prog, args, stop, n_committed)
         if args.debug:
             raise
+        if isinstance(exc, SemmapError):
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return exc.exit_code
+        if isinstance(exc, OSError):  # unwritable output, full disk...: the message names the path
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 1
+        if isinstance(exc, InternalError):  # a bug in a worker process; its traceback is the cause
+            print(f"{prog}: internal error {exc} (run again with --debug for the traceback, and please report it)",
+                  file=sys.stderr)
+            return EXIT_INTERNAL
         print(f"{prog}: internal error: {type(exc).__name__}: {exc} "
               f"(run again with --debug for the traceback, and please report it)", file=sys.stderr)
         return EXIT_INTERNAL

@@ -1404,12 +1404,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         is_face[list(faces)] = True
         shown = kept & ~is_face[labels]
         reach = own_occ & other_free & ~on_objects & ~people & (mask == 0)
-        for _ in range(int(math.ceil(tol))):
-            shown |= _dilate(shown, 1.5) & reach
+        shown = _grow_along(shown, reach, int(math.ceil(tol)))
         if own_faint is not None:
-            # and along its own faint obstacles: a face seen at a grazing angle is occupied where beams
-            # ended on it often enough and faint between (the rays that grazed it cleared it)
-            shown = _grow_faint(shown, own_faint & other_free & ~other_near & ~on_objects & ~people & (mask == 0))
+            # and along its own faint obstacles, up to ten cells: a face seen at a grazing angle is
+            # occupied where beams ended on it often enough and faint between (the rays that grazed it
+            # cleared it), but it is one face
+            shown = _grow_along(shown, own_faint & other_free & ~other_near & ~on_objects & ~people & (mask == 0), 10)
         mask[shown] = value
 
     # floor only one session observed
@@ -1425,15 +1425,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     return changes, mask, left_out
 
 
-def _grow_faint(changed: NDArray[np.bool_], faint: NDArray[np.bool_], steps: int = 10) -> NDArray[np.bool_]:
-    """``changed`` grown along ``faint`` cells that touch it, up to ``steps`` cells: a face seen at a
-    grazing angle is occupied where beams ended on it often enough, and faint between (the rays that
-    grazed it cleared it), but it is one face."""
-    out = changed.copy()
-    if not faint.any() or not changed.any():
+def _grow_along(cells: NDArray[np.bool_], allowed: NDArray[np.bool_], steps: int) -> NDArray[np.bool_]:
+    """``cells`` grown through 8-connected ``allowed`` cells, one cell a step, for up to ``steps`` steps."""
+    out = cells.copy()
+    if not allowed.any() or not cells.any():
         return out
     for _ in range(steps):
-        grow = _dilate(out, 1.5) & faint & ~out
+        grow = _dilate(out, 1.5) & allowed & ~out
         if not grow.any():
             break
         out |= grow

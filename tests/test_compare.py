@@ -548,6 +548,36 @@ def test_a_chair_moved_less_than_its_size_onto_its_own_legs_places_is_one_move(l
     assert np.linalg.norm(_world(mv.to_xy) - (6.0, 3.34)) < 0.05
 
 
+@pytest.mark.parametrize("a_saw", ["wall", "floor"])
+def test_a_chair_moved_from_against_a_wall_to_where_no_camera_saw_it_is_one_move(a_saw):
+    # A's chair stood with its back legs against the north wall: A's map holds them as part of the wall,
+    # and its object only the two front legs the camera labelled. In B it stands in the room, four legs
+    # no camera labelled. Two legs fit any blob; here B's other two land on A's wall, where A could not
+    # tell legs from wall: a chair moved. Where A saw floor under them instead, A's chair had two legs
+    # and B's obstacle has four: no move
+    a, b = Room(), Room()
+    chair = ("chair", (3.0, 7.73), (0.45, 0.45), 0.0)
+    a.objects.append(chair)
+    a.unseen_legs[0] = (2, 3)  # the back legs (y = 7.925): not in the object
+    if a_saw == "wall":
+        a.walls += [(2.805, 7.925, 2.805, 8.0), (3.195, 7.925, 3.195, 8.0)]  # joined to the wall
+    else:
+        a.objects[0] = ("chair", (3.0, 7.0), (0.45, 0.45), 0.0)  # in the room: A saw floor under the back legs
+    b.unlabelled.append(("chair", (4.5, 5.5), (0.45, 0.45), math.radians(30)))
+    r = _diff(a, b)
+    counts = r.counts()
+    if a_saw == "floor":
+        assert counts["object_moved"] == 0 and counts["object_disappeared"] == 1, counts
+        return
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_disappeared"] == counts["object_appeared"] == counts["static_added"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert np.linalg.norm(_world(mv.to_xy) - (4.5, 5.5)) < 0.05
+    assert np.linalg.norm(_world(mv.from_xy) - (3.0, 7.73)) < 0.05
+    assert mv.displacement_m == pytest.approx(math.hypot(1.5, 2.23), abs=0.05)
+
+
 def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
     # A's build drew the bed's box over the chair beside it (and listed the bed after it). The build
     # grouped the chair's legs into the chair, so its move is one move and the bed did not change

@@ -23,6 +23,7 @@ only (``DiffResult.semantic`` is False and the report says so).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -520,6 +521,18 @@ def _arc_centre(cells: NDArray[np.intp], spec: GridSpec, max_radius: float) -> t
     return centre + m, radius
 
 
+def _lookup(img: NDArray[np.bool_], spec: GridSpec, xy: NDArray[np.float64], outside: bool = False
+            ) -> NDArray[np.bool_]:
+    """``img`` (on ``spec``'s grid) at the points ``xy`` (m), ``outside`` beyond the grid."""
+    res = spec.resolution
+    c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
+    r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
+    ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
+    out = np.full(xy.shape[0], outside)
+    out[ok] = img[r[ok], c[ok]]
+    return out
+
+
 def _cells_xy(cells: NDArray[np.intp], spec: GridSpec) -> NDArray[np.float64]:
     return np.stack([spec.origin_x + (cells[:, 1] + 0.5) * spec.resolution,
                      spec.origin_y + (cells[:, 0] + 0.5) * spec.resolution], axis=1).astype(np.float64)
@@ -642,25 +655,60 @@ def _piece_object(cells: NDArray[np.intp], class_name: str, spec: GridSpec) -> _
                                  int(cells.shape[0])), c, yaw, np.zeros((0, 2)), cells)
 
 
-def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float
-               ) -> tuple[float, int]:
+def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float,
+               hidden_a: Any = None, hidden_b: Any = None, min_legs: int = 0) -> tuple[float, int, bool]:
     """How well one set of cells fits another by a rigid motion (for cells no camera labelled: only
     their shape says they are one object): the smaller share of either set's cells the best motion
     lays within 1.6 cells of the other's, and the fewer legs of either set it lays on a leg of the
-    other (within two cells)."""
+    other (within two cells); and whether the legs count those hidden (below).
+
+    ``hidden_a`` / ``hidden_b`` (``(xy) -> bool mask``: session A's / B's obstacles), used when the
+    plain fit has fewer than ``min_legs`` legs: a cell of one set the motion lays on the other
+    session's obstacles, not on the other set, is explained too: a leg that stood against a wall there,
+    which that session's map holds as part of the wall. When two or more legs of each set lie on legs
+    of the other, and every leg of the set given no obstacles does, the legs are then those of the set
+    with more, each on a leg of the other or on its obstacles (two legs of a chair by a wall in A, which
+    are four legs in B, the other two on A's wall). The fit with hidden legs is returned when it has
+    ``min_legs`` legs."""
     tol = 1.6 * res
-    motion = _fit_motion(src, dst, turns, res)
-    moved, back = se2_apply(motion, src), se2_apply(se2_inverse(motion), dst)
-    q = min(float(np.mean(cKDTree(dst).query(moved)[0] <= tol)), float(np.mean(cKDTree(src).query(back)[0] <= tol)))
     legs_a, legs_b = _legs(src, tol), _legs(dst, tol)
-    on_b = cKDTree(legs_b).query(se2_apply(motion, legs_a))[0] <= 2 * res
-    on_a = cKDTree(legs_a).query(se2_apply(se2_inverse(motion), legs_b))[0] <= 2 * res
-    return q, int(min(on_b.sum(), on_a.sum()))
+
+    def fit(ha: Any, hb: Any) -> tuple[float, int, int, bool]:
+        motion = _fit_motion(src, dst, turns, res, None, ha, hb)
+        moved, back = se2_apply(motion, src), se2_apply(se2_inverse(motion), dst)
+        hit_src = cKDTree(dst).query(moved)[0] <= tol
+        hit_dst = cKDTree(src).query(back)[0] <= tol
+        if hb is not None:
+            hit_src = hit_src | hb(moved)
+        if ha is not None:
+            hit_dst = hit_dst | ha(back)
+        q = min(float(np.mean(hit_src)), float(np.mean(hit_dst)))
+        legs_a_moved, legs_b_back = se2_apply(motion, legs_a), se2_apply(se2_inverse(motion), legs_b)
+        on_b = cKDTree(legs_b).query(legs_a_moved)[0] <= 2 * res
+        on_a = cKDTree(legs_a).query(legs_b_back)[0] <= 2 * res
+        direct = int(min(on_b.sum(), on_a.sum()))
+        if ha is None and hb is None:
+            return q, direct, direct, True
+        hid_src = hb(legs_a_moved) & ~on_b if hb is not None else np.zeros(on_b.shape, bool)
+        hid_dst = ha(legs_b_back) & ~on_a if ha is not None else np.zeros(on_a.shape, bool)
+        # the set whose legs no obstacle hides has every leg on a leg of the other
+        whole = bool(on_b.all()) if ha is not None else True
+        whole &= bool(on_a.all()) if hb is not None else True
+        return q, direct, int(max(on_b.sum() + hid_src.sum(), on_a.sum() + hid_dst.sum())), whole
+
+    q, legs, _, _ = fit(None, None)
+    if legs >= min_legs or (hidden_a is None and hidden_b is None):
+        return q, legs, False
+    q_h, direct, legs_h, whole = fit(hidden_a, hidden_b)
+    if direct >= 2 and whole and legs_h >= min_legs:
+        return q_h, legs_h, True
+    return q, legs, False
 
 
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
-                         objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None
-                         ) -> list[tuple[_Obj, _Obj]]:
+                         objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None,
+                         hidden: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None
+                         ) -> tuple[list[tuple[_Obj, _Obj]], set[int]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
@@ -672,10 +720,22 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     An object moved by less than its own size may put legs where legs of its own stood: those are
     no change, so the piece holds only the others (two of a chair's four). ``other_obstacles`` (the
     other session's obstacles, on the common grid): for a piece within one object length, its cells
-    on the object's own cells join the piece."""
+    on the object's own cells join the piece. ``hidden`` (A's and B's obstacles): legs of the piece that
+    the motion lays on the object's session's obstacles are explained (:func:`_shape_fit`): a chair
+    that stood with two legs against a wall, which that session saw as two legs and a wall. Also
+    returns the ids of the pieces' objects paired so."""
     res = spec.resolution
+    hidden_a = hidden_b = None
+    if hidden is not None:
+        # only the piece's legs: the object's session saw the object against its obstacles (the piece,
+        # a handful of cells, is no evidence of legs the object's own session saw apart); within the
+        # fit's tolerance, 1.6 cells: the leg stood against the obstacle, not in it
+        own_obstacles = hidden[0] if objects_in_a else hidden[1]
+        lookup = functools.partial(_lookup, _dilate(own_obstacles, 1.6), spec)
+        hidden_a, hidden_b = (lookup, None) if objects_in_a else (None, lookup)
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
+    through_hidden: set[int] = set()
     for o in objs:
         if o.cells.shape[0] < 2:
             continue
@@ -683,7 +743,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
         own = _cells_near(other_obstacles, o.cells, 1.5) if other_obstacles is not None else None
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
-        best, best_q, best_cells = None, 0.0, None
+        best, best_q, best_cells, best_hidden = None, 0.0, None, False
         o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
         for k, piece in enumerate(pieces):
             if k in used or piece.shape[0] < 2:
@@ -702,7 +762,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             # quarter and half turns
             box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            q, legs = _shape_fit(src, dst, turns, res)
+            q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
             if q < st.unlabelled_fit or q <= best_q:
                 continue
             if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle
@@ -710,13 +770,15 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     o_arc = (_piece_arc(o.cells, length, spec),)
                 if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
                     continue
-            best, best_q, best_cells = k, q, cells
+            best, best_q, best_cells, best_hidden = k, q, cells, by_hidden
         if best is None or best_cells is None:
             continue
         used.add(best)
         twin = _piece_object(best_cells, o.src.class_name, spec)
         out.append((o, twin) if objects_in_a else (twin, o))
-    return out
+        if best_hidden:
+            through_hidden.add(id(twin))
+    return out, through_hidden
 
 
 def _piece_arc(cells: NDArray[np.intp], length: float, spec: GridSpec) -> float | None:
@@ -777,7 +839,7 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
                 continue
             turn = _box_turn(pa[3], pb[3])
             turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            q, legs = _shape_fit(pa[0], pb[0], turns, res)
+            q, legs, _ = _shape_fit(pa[0], pb[0], turns, res)
             if q < st.unlabelled_fit:
                 continue
             if legs < st.min_fit_legs:  # a blob with no legs to fit: a pot, when both are arcs of one circle
@@ -1231,13 +1293,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         legs_a, legs_b = _small_blobs(lo.occ_a, leg_cells), _small_blobs(lo.occ_b, leg_cells)
         own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & legs_a,
                     False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & legs_b}
+        through_hidden: set[int] = set()  # objects paired with legs the other session's walls hid
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
             whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
-            partners = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group), spec,
-                                            st, in_a, other)
+            partners, hidden_twins = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group),
+                                                          spec, st, in_a, other, (obst_a, obst_b))
             moved += partners
+            through_hidden |= hidden_twins
             done = {id(p[0] if in_a else p[1]) for p in partners}
             objs_idx[:] = [i for i in objs_idx if id(whole[i]) not in done]
         # and furniture neither camera labelled (beside the path in both tours) moved when a piece of
@@ -1264,22 +1328,19 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         furn_a = _dilate(semi_a | legs_a, 1.5) if moved else semi_a
         furn_b = _dilate(semi_b | legs_b, 1.5) if moved else semi_b
 
-        def lookup(img: NDArray[np.bool_], xy: NDArray[np.float64], outside: bool) -> NDArray[np.bool_]:
-            c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
-            r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
-            ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
-            out = np.full(xy.shape[0], outside)
-            out[ok] = img[r[ok], c[ok]]
-            return out
-
         def contradicts(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
-            return lookup(b_contra, xy, True)
+            return _lookup(b_contra, spec, xy, True)
 
         def furniture_a(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
-            return lookup(furn_a, xy, False)
+            return _lookup(furn_a, spec, xy)
 
         def furniture_b(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
-            return lookup(furn_b, xy, False)
+            return _lookup(furn_b, spec, xy)
+
+        def hidden_too(furniture: Callable[[NDArray[np.float64]], NDArray[np.bool_]], obstacles: NDArray[np.bool_]
+                       ) -> Callable[[NDArray[np.float64]], NDArray[np.bool_]]:
+            walls = _dilate(obstacles, 1.6)
+            return lambda xy: furniture(xy) | _lookup(walls, spec, xy)
 
         def mark(o: _Obj, changed: NDArray[np.bool_], other_free: NDArray[np.bool_], zone: NDArray[np.bool_],
                  value: int) -> None:
@@ -1305,7 +1366,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             # turns (a box looks alike turned half way round, a square one a quarter)
             box = _box_turn(oa.yaw, ob.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, furniture_a, furniture_b)
+            fa: Callable[[NDArray[np.float64]], NDArray[np.bool_]] = furniture_a
+            fb: Callable[[NDArray[np.float64]], NDArray[np.bool_]] = furniture_b
+            if id(oa) in through_hidden or id(ob) in through_hidden:
+                # paired on legs the other session's walls hid: those walls explain them here too
+                fa, fb = hidden_too(furniture_a, obst_a), hidden_too(furniture_b, obst_b)
+            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, fa, fb)
             # cells with an obstacle of the other session where they are (a neighbour that did not
             # move, grouped with the object) say nothing of where it went; keep three or more
             keep_a = ~near_b[cells_a[:, 0], cells_a[:, 1]]

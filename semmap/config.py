@@ -816,6 +816,11 @@ class CleaningConfig(_Model):
                                                                          "on two leg blobs apart, also as this "
                                                                          "share): a few returns painted through a "
                                                                          "chair's mask do not make a person a chair")
+    person_leg_seen_share: float = Field(0.1, ge=0, le=1, description="... and never when person labels are at "
+                                                                      "least this share of its labelled returns: "
+                                                                      "legs seen under a bed's or a table's edge, "
+                                                                      "painted through its mask in most frames and "
+                                                                      "as a person's in the rest (0: off)")
     transient_ratio: float = Field(2.0, ge=0, le=1000, description="an occupied cell no camera labelled, off the "
                                                                    "walls, that scans saw free at least this many "
                                                                    "times as often as they hit it is someone who "

@@ -351,7 +351,8 @@ _LEG_MIN_EXTENT = 0.15
 
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
                cfg: CleaningConfig, semi: NDArray[np.float32], hits: NDArray[np.uint16],
-               static_veto: NDArray[np.bool_], static: NDArray[Any] | None = None) -> NDArray[np.bool_]:
+               static_veto: NDArray[np.bool_], static: NDArray[Any] | None = None,
+               dynamic: NDArray[Any] | None = None, labelled: NDArray[Any] | None = None) -> NDArray[np.bool_]:
     """Cells of people no camera labelled, found by their legs: two isolated blobs a person's leg wide
     (``person_leg_width``), their centres ``person_leg_spacing`` apart, with nothing else near.
 
@@ -361,6 +362,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     something else is never a leg: labels of structure (``static_veto``; for two leg blobs apart, only
     when ``static`` hits are ``person_leg_veto_share`` of their ``hits`` too), or labels of furniture
     (``vetoed`` cells, their ``semi`` hits at least ``person_leg_veto_share`` of the blob's ``hits``).
+    Neither vetoes a blob whose ``dynamic`` labels are ``person_leg_seen_share`` of its ``labelled`` returns
+    (and ``min_labelled_hits`` or more): a person behind a bed, whose legs at LiDAR height the camera sees
+    under the bed's edge, painted as the bed's in most frames and as a person's in the rest.
     Walls (``structure``) and anything longer than ``structure_min_size`` may be near: people stand by
     walls, beds and counters.
     """
@@ -372,6 +376,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     s_lo, s_hi = cfg.person_leg_spacing
     veto = np.bincount(lab[vetoed], minlength=n) > 0
     pair_veto = veto  # what vetoes two leg blobs apart
+    seen_dyn: NDArray[Any] | None = None  # per blob, its person labels and all its labels
+    seen_lab: NDArray[Any] = np.zeros(n)
     if cfg.person_leg_veto_share > 0:
         # furniture labels veto a blob when they are a share of its returns; structure labels always do,
         # except on two leg blobs apart (the stronger shape), where they must be that share too: a person
@@ -384,6 +390,10 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if static is not None:
             built &= np.bincount(lab[on], static[on].astype(np.float64), n) >= share
         pair_veto = furniture | built
+        if dynamic is not None and labelled is not None and cfg.person_leg_seen_share > 0:
+            seen_dyn = np.bincount(lab[on], dynamic[on].astype(np.float64), n)
+            seen_lab = np.bincount(lab[on], labelled[on].astype(np.float64), n)
+            veto &= ~_seen_as_person(seen_dyn, seen_lab, cfg)
     veto[0] = pair_veto[0] = True
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
@@ -417,10 +427,16 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
 
     person = np.zeros(n, bool)
     # two legs, two blobs
-    ids = np.flatnonzero((w >= lo) & (w <= hi) & ~pair_veto)
+    # (a blob the furniture labels veto may still pair when the two, summed, were seen as a person's)
+    may_pair = ~pair_veto if seen_dyn is None else np.ones(n, bool)
+    ids = np.flatnonzero((w >= lo) & (w <= hi) & may_pair)
     if ids.size >= 2:
         d = np.hypot(xy[ids, None, 0] - xy[None, ids, 0], xy[ids, None, 1] - xy[None, ids, 1])
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
+            if seen_dyn is not None and (pair_veto[ids[i]] or pair_veto[ids[j]]):
+                two = [ids[i], ids[j]]
+                if not _seen_as_person(seen_dyn[two].sum(), seen_lab[two].sum(), cfg):
+                    continue
             if alone(0.5 * (xy[ids[i]] + xy[ids[j]]), (ids[i], ids[j]), thin_near=True):
                 person[ids[i]] = person[ids[j]] = True
     # two legs close together merge into one blob: a leg wide across, two legs long, with a waist
@@ -444,6 +460,18 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if lo <= thick <= hi - res + 0.02 * res or _two_lobes(pts, res, lo):
             person[b] = True
     return person[lab]
+
+
+#: person labels a leg blob (or two) needs at the least before they can outweigh furniture labels: more
+#: than a frame or two's (a chair's two legs on a development map took 2 among 15 chair labels, from a
+#: person passing in front of them)
+_SEEN_MIN_LABELS = 10
+
+
+def _seen_as_person(dyn: Any, labelled: Any, cfg: CleaningConfig) -> Any:
+    """Whether a blob's (or blobs') person labels outweigh furniture labels for the legs rule: at least
+    ``_SEEN_MIN_LABELS`` and ``person_leg_seen_share`` of its labelled returns."""
+    return (dyn >= max(cfg.min_labelled_hits, _SEEN_MIN_LABELS)) & (dyn >= cfg.person_leg_seen_share * labelled)
 
 
 def _one_ring(pts: NDArray[np.float64], res: float) -> bool:
@@ -686,7 +714,8 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         # the chair's mask (parallax) among hundreds; structure labels veto one blob as they are, two leg
         # blobs apart as a share too
         legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg,
-                                       s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits), s_static)
+                                       s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits), s_static,
+                                       s_dyn, lab)
         if legs.any():
             dyn |= legs
             semi &= ~dyn

@@ -526,6 +526,9 @@ class OcclusionConfig(_Model):
                                                         "typical size (class table, sizes:); a point of its mask "
                                                         "farther than that from a nearer point of the mask, behind "
                                                         "it, is hidden (0: off)")
+    background: bool = Field(True, description="points off every mask (walls, floor: 'static') are hidden too "
+                                               "when another such point stands nearer on the same viewing ray: "
+                                               "what a corner LiDAR sees past a wall's edge, the camera cannot")
 
     @property
     def ray_width(self) -> float:

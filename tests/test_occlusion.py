@@ -271,3 +271,30 @@ def test_a_far_chair_seen_between_the_legs_of_a_near_one_keeps_its_label():
     hidden = hidden_points(xy, np.zeros(2), labels, uv, labels > 0, footprint, img, OcclusionConfig(), extent)
     is_far = (pts[:, 0] > 3.9) & (pts[:, 0] < 4.1)
     assert (labels[is_far] == CHAIR).all() and not hidden[is_far].any()
+
+
+def test_what_a_corner_lidar_sees_past_a_walls_end_is_unknown_and_walls_at_a_grazing_angle_stay():
+    """Off every mask (label 0, painted static): the LiDAR at the robot's left corner (0.23 m beside the
+    camera) sees past the end of a wall on the right a person the camera cannot see (its rays to them hit
+    that wall), who would be painted as the wall; they are hidden. The wall itself, a long wall seen at a
+    grazing angle (its nearer points on nearly the same rays as its farther ones, all on one line) and a
+    wall in the open are not."""
+    side = np.array([(x, -0.5) for x in np.arange(1.0, 3.0, 0.02)])  # a wall on the right, ending at x = 3
+    person = np.array([(6.0 + 0.06 * math.cos(a), -1.15 + 0.06 * math.sin(a)) for a in np.linspace(2.2, 4.1, 6)])
+    grazing = np.array([(x, 0.6) for x in np.arange(2.0, 20.0, 0.05)])  # down the corridor on the left
+    open_wall = np.array(wall_at(8.0, -0.3, 0.1))  # ahead, nothing in front of it
+    kind = np.concatenate([np.full(len(a), k) for k, a in enumerate((side, person, grazing, open_wall))])
+    pts = np.vstack([side, person, grazing, open_wall])
+    lidar = np.array([0.0, 0.23])
+    order = np.argsort(np.arctan2(pts[:, 1] - lidar[1], pts[:, 0] - lidar[0]))  # the LiDAR's scan order
+    pts, kind = pts[order], kind[order]
+    # (the camera's ray to the person crosses the wall's line at x = 2.6, on the wall; the LiDAR's at 3.2)
+    xy, labels, uv, footprint, img = scene(pts, lambda c: 0)
+    everything = np.ones(len(pts), bool)
+    hidden = hidden_points(xy, np.zeros(2), labels, uv, everything, footprint, img, DEFAULT)
+    assert (kind == 2).sum() > 300
+    assert hidden[kind == 1].all()
+    assert not hidden[kind != 1].any()
+    # the rule is the filter's: off, the person keeps its (wrong) static label
+    assert not hidden_points(xy, np.zeros(2), labels, uv, everything, footprint, img,
+                             OcclusionConfig(background=False)).any()

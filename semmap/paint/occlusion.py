@@ -43,9 +43,15 @@ same mask lie nearer the camera and cover it:
    wall stands in front of the wall beside it (a cabinet's face), or when the bed's other
    legs are out of the LiDAR's sight.
 
+6. **Off every mask** (``background``). A point on no mask (painted ``static``) is hidden when
+   another point on no mask stands on its viewing ray, nearer by the depth margin, and off its own
+   surface (the line through it and a neighbour in the scan: a wall seen at a grazing angle does
+   not hide itself): what a LiDAR at a corner of the robot sees past the end of a wall that the
+   camera's rays hit.
+
 A run of scan points nearer than the points on either side of it (a chair's rear leg seen
-through the gap between its front legs) is a foreground object to the LiDAR; only rule 1 may
-hide it.
+through the gap between its front legs) is a foreground object to the LiDAR; only rules 1, 5 and
+6 may hide it.
 
 Hidden points become ``unknown`` (not ``static``: the camera says nothing about them). The
 occluding points must carry the same label as ``p``: the label image shows one surface per
@@ -93,6 +99,8 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     """
     k = xy.shape[0]
     hidden = np.zeros(k, bool)
+    if p.background:
+        hidden |= _hidden_background(xy, eye, labels, targets, footprint, p)
     on_mask = labels > 0
     t = np.flatnonzero(targets & on_mask)
     if t.size == 0:
@@ -219,6 +227,82 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
                 hid_t[c] = masks.joined(t[c], o[j])
     hidden[t] = hid_t
     return hidden
+
+
+#: rad, the bearing bins of the background same-ray test (a quarter of a degree)
+_BEARING_BIN = np.radians(0.25)
+
+
+def _hidden_background(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDArray[np.intp],
+                       targets: NDArray[np.bool_], footprint: NDArray[np.float64],
+                       p: OcclusionConfig) -> NDArray[np.bool_]:
+    """Rule 1 for points off every mask (label 0): hidden when another point off the masks stands on
+    the same viewing ray, nearer by the depth margin, and off the target's own surface. The LiDAR at a
+    corner of the robot sees past the edge of a wall that hides the same place from the camera; a
+    person standing there projects onto the wall's pixels, and would be painted static (a wall). A
+    nearer point of a mask on the ray would put its mask on the pixel, so only points off the masks can
+    hide these. A straight surface never hides itself: a wall seen at a grazing angle has its nearer
+    points on nearly the same ray, on the line through the target and its neighbours in the scan."""
+    out = np.zeros(xy.shape[0], bool)
+    bg = labels == 0
+    t = np.flatnonzero(targets & bg)
+    if t.size == 0 or np.count_nonzero(bg) < 2:
+        return out
+    o = np.flatnonzero(bg)
+    rel = xy - eye
+    dist = np.hypot(rel[:, 0], rel[:, 1])
+    bearing = np.arctan2(rel[:, 1], rel[:, 0])
+    # each occluder covers its footprint (half a beam spacing each side) widened by the ray width
+    half = 0.5 * (footprint[o] / np.maximum(dist[o], 1e-6) + p.ray_width)
+    reach = int(min(np.ceil(half.max() / _BEARING_BIN), 40))
+    lo = np.floor((bearing[o] - half) / _BEARING_BIN).astype(np.int64)
+    hi = np.floor((bearing[o] + half) / _BEARING_BIN).astype(np.int64)
+    base = int(min(lo.min(), np.floor(bearing[t].min() / _BEARING_BIN)))
+    # (bin, occluder) pairs, sorted by bin: the bins each occluder covers
+    b = lo[:, None] + np.arange(2 * reach + 2)[None, :]
+    ok = b <= hi[:, None]
+    pair_bin = b[ok] - base
+    pair_o = np.broadcast_to(o[:, None], b.shape)[ok]
+    # by bin, nearest first; most targets are the nearest point of their bin: only those with something
+    # nearer are checked
+    order = np.lexsort((dist[pair_o], pair_bin))
+    pair_bin, pair_o = pair_bin[order], pair_o[order]
+    n_bins = int(max(hi.max(), np.floor(bearing[t].max() / _BEARING_BIN))) - base + 1
+    nearest = np.full(n_bins, np.inf)
+    first = np.ones(pair_bin.size, bool)
+    first[1:] = pair_bin[1:] != pair_bin[:-1]
+    nearest[pair_bin[first]] = dist[pair_o[first]]
+    bt = np.floor(bearing[t] / _BEARING_BIN).astype(np.int64) - base
+    behind = nearest[bt] < dist[t] - (p.depth_margin + p.depth_margin_rel * dist[t])
+    if not behind.any():
+        return out
+    t, bt = t[behind], bt[behind]
+    # each target against the occluders of its bin that are nearer by the depth margin
+    start, stop = np.searchsorted(pair_bin, bt, "left"), np.searchsorted(pair_bin, bt, "right")
+    count = stop - start
+    if not count.any():
+        return out
+    ti = np.repeat(np.arange(t.size), count)
+    pi = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+    tt, oo = t[ti], pair_o[pi]
+    near = dist[oo] < dist[tt] - (p.depth_margin + p.depth_margin_rel * dist[tt])
+    if not near.any():
+        return out
+    tt, oo = tt[near], oo[near]
+    # the target's surface: the line through it and either neighbour in the scan (at the end of a
+    # surface, only one of them lies on it)
+    k = xy.shape[0]
+    w = xy[oo] - xy[tt]
+    tol = np.maximum(3.0 * footprint[tt], 0.05)
+    on_surface = np.zeros(tt.size, bool)
+    for nb in (np.maximum(tt - 1, 0), np.minimum(tt + 1, k - 1)):
+        u = xy[nb] - xy[tt]
+        norm = np.hypot(u[:, 0], u[:, 1])
+        off_line = np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) / np.maximum(norm, 1e-9)
+        on_surface |= (norm > 1e-9) & (off_line <= tol)
+    apart = ~on_surface
+    out[tt[apart]] = True
+    return out
 
 
 def _runs(xy: NDArray[np.float64], footprint: NDArray[np.float64],

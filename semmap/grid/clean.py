@@ -363,8 +363,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     when ``static`` hits are ``person_leg_veto_share`` of their ``hits`` too), or labels of furniture
     (``vetoed`` cells, their ``semi`` hits at least ``person_leg_veto_share`` of the blob's ``hits``).
     Neither vetoes a blob whose ``dynamic`` labels are ``person_leg_seen_share`` of its ``labelled`` returns
-    (and ``min_labelled_hits`` or more): a person behind a bed, whose legs at LiDAR height the camera sees
-    under the bed's edge, painted as the bed's in most frames and as a person's in the rest.
+    (and ``_SEEN_MIN_LABELS`` or more; two leg blobs apart: summed): a person behind a bed, whose legs at
+    LiDAR height the camera sees under the bed's edge, painted as the bed's in most frames and as a
+    person's in the rest.
     Walls (``structure``) and anything longer than ``structure_min_size`` may be near: people stand by
     walls, beds and counters.
     """

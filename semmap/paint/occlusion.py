@@ -83,7 +83,8 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
                   uv: NDArray[np.float64] | NDArray[np.integer], targets: NDArray[np.bool_],
                   footprint: NDArray[np.float64], label_image: NDArray[np.integer], p: OcclusionConfig,
                   extent: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
-    """Which points are hidden from the camera by nearer points of the same mask.
+    """Which points are hidden from the camera by nearer points of the same mask (points off every mask:
+    by nearer points off the masks, rule 6).
 
     ``xy`` (K, 2): the points in the LiDAR plane, every point in front of the camera whose
     column is in the image, where they were at the image time, in any planar frame (the
@@ -91,8 +92,9 @@ def hidden_points(xy: NDArray[np.float64], eye: NDArray[np.float64], labels: NDA
     centre at the image time in the same frame; ``labels`` (K,): the label value under each
     point (0: no mask; read at the image's edge for points above or below it); ``uv`` (K, 2):
     their pixels (column, row), clamped to the image (whole pixels if integers); ``targets``
-    (K,): the points to judge (inside the image, on a mask); ``footprint`` (K,): each point's
-    lateral extent, m (the LiDAR beam spacing at its range); ``label_image``: the
+    (K,): the points to judge (inside the image; off the masks only with ``p.background``);
+    ``footprint`` (K,): each point's lateral extent, m (the LiDAR beam spacing at its range);
+    ``label_image``: the
     segmentation; ``p``: the filter's settings (``paint.occlusion``; ``filter`` is the caller's
     to check); ``extent``: per label value, the most an object of that label spans, m (inf:
     unbounded, such as structure; None: rule 5 off). Returns a (K,) mask, true only for targets.
@@ -252,6 +254,7 @@ def _hidden_background(xy: NDArray[np.float64], eye: NDArray[np.float64], labels
     rel = xy - eye
     dist = np.hypot(rel[:, 0], rel[:, 1])
     bearing = np.arctan2(rel[:, 1], rel[:, 0])
+    limit = dist - (p.depth_margin + p.depth_margin_rel * dist)  # an occluder is nearer than this
     # each occluder covers its footprint (half a beam spacing each side) widened by the ray width
     half = 0.5 * (footprint[o] / np.maximum(dist[o], 1e-6) + p.ray_width)
     reach = int(min(np.ceil(half.max() / _BEARING_BIN), 40))
@@ -273,7 +276,7 @@ def _hidden_background(xy: NDArray[np.float64], eye: NDArray[np.float64], labels
     first[1:] = pair_bin[1:] != pair_bin[:-1]
     nearest[pair_bin[first]] = dist[pair_o[first]]
     bt = np.floor(bearing[t] / _BEARING_BIN).astype(np.int64) - base
-    behind = nearest[bt] < dist[t] - (p.depth_margin + p.depth_margin_rel * dist[t])
+    behind = nearest[bt] < limit[t]
     if not behind.any():
         return out
     t, bt = t[behind], bt[behind]
@@ -285,7 +288,7 @@ def _hidden_background(xy: NDArray[np.float64], eye: NDArray[np.float64], labels
     ti = np.repeat(np.arange(t.size), count)
     pi = np.repeat(start - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
     tt, oo = t[ti], pair_o[pi]
-    near = dist[oo] < dist[tt] - (p.depth_margin + p.depth_margin_rel * dist[tt])
+    near = dist[oo] < limit[tt]
     if not near.any():
         return out
     tt, oo = tt[near], oo[near]

@@ -707,7 +707,7 @@ def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[
 
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
                          objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None,
-                         hidden: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None
+                         own_walls: NDArray[np.bool_] | None = None
                          ) -> tuple[list[tuple[_Obj, _Obj]], set[int]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
@@ -720,18 +720,15 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     An object moved by less than its own size may put legs where legs of its own stood: those are
     no change, so the piece holds only the others (two of a chair's four). ``other_obstacles`` (the
     other session's obstacles, on the common grid): for a piece within one object length, its cells
-    on the object's own cells join the piece. ``hidden`` (A's and B's obstacles): legs of the piece that
-    the motion lays on the object's session's obstacles are explained (:func:`_shape_fit`): a chair
-    that stood with two legs against a wall, which that session saw as two legs and a wall. Also
-    returns the ids of the pieces' objects paired so."""
+    on the object's own cells join the piece. ``own_walls`` (the objects' session's obstacles grown by
+    the fit's tolerance, on the common grid): legs of the piece that the motion lays on them are
+    explained (:func:`_shape_fit`): a chair that stood with two legs against a wall, which that session
+    saw as two legs and a wall. Only the piece's legs: the piece, a handful of cells, is no evidence of
+    legs the object's own session saw apart. Also returns the ids of the pieces' objects paired so."""
     res = spec.resolution
     hidden_a = hidden_b = None
-    if hidden is not None:
-        # only the piece's legs: the object's session saw the object against its obstacles (the piece,
-        # a handful of cells, is no evidence of legs the object's own session saw apart); within the
-        # fit's tolerance, 1.6 cells: the leg stood against the obstacle, not in it
-        own_obstacles = hidden[0] if objects_in_a else hidden[1]
-        lookup = functools.partial(_lookup, _dilate(own_obstacles, 1.6), spec)
+    if own_walls is not None:
+        lookup = functools.partial(_lookup, own_walls, spec)
         hidden_a, hidden_b = (lookup, None) if objects_in_a else (None, lookup)
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
@@ -1294,12 +1291,20 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & legs_a,
                     False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & legs_b}
         through_hidden: set[int] = set()  # objects paired with legs the other session's walls hid
+        # each session's obstacles grown by the fit's tolerance (1.6 cells: a leg stood against the
+        # obstacle, not in it), made when first needed
+        walls: dict[bool, NDArray[np.bool_]] = {}
+
+        def walls_of(in_a: bool) -> NDArray[np.bool_]:
+            if in_a not in walls:
+                walls[in_a] = _dilate(obst_a if in_a else obst_b, 1.6)
+            return walls[in_a]
         for objs_idx, objs_all, changed, in_a, other in sides:
             if not objs_idx:
                 continue
             whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
             partners, hidden_twins = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group),
-                                                          spec, st, in_a, other, (obst_a, obst_b))
+                                                          spec, st, in_a, other, walls_of(in_a))
             moved += partners
             through_hidden |= hidden_twins
             done = {id(p[0] if in_a else p[1]) for p in partners}
@@ -1337,10 +1342,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         def furniture_b(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
             return _lookup(furn_b, spec, xy)
 
-        def hidden_too(furniture: Callable[[NDArray[np.float64]], NDArray[np.bool_]], obstacles: NDArray[np.bool_]
+        def hidden_too(furniture: Callable[[NDArray[np.float64]], NDArray[np.bool_]], in_a: bool
                        ) -> Callable[[NDArray[np.float64]], NDArray[np.bool_]]:
-            walls = _dilate(obstacles, 1.6)
-            return lambda xy: furniture(xy) | _lookup(walls, spec, xy)
+            grown = walls_of(in_a)
+            return lambda xy: furniture(xy) | _lookup(grown, spec, xy)
 
         def mark(o: _Obj, changed: NDArray[np.bool_], other_free: NDArray[np.bool_], zone: NDArray[np.bool_],
                  value: int) -> None:
@@ -1370,7 +1375,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             fb: Callable[[NDArray[np.float64]], NDArray[np.bool_]] = furniture_b
             if id(oa) in through_hidden or id(ob) in through_hidden:
                 # paired on legs the other session's walls hid: those walls explain them here too
-                fa, fb = hidden_too(furniture_a, obst_a), hidden_too(furniture_b, obst_b)
+                fa, fb = hidden_too(furniture_a, True), hidden_too(furniture_b, False)
             motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, fa, fb)
             # cells with an obstacle of the other session where they are (a neighbour that did not
             # move, grouped with the object) say nothing of where it went; keep three or more

@@ -433,21 +433,26 @@ def test_a_couch_pushed_against_a_wall_has_its_wall_side_in_the_change_mask():
     assert back.shape[0] >= 4  # the back legs' cells, labelled couch, within a cell of the wall
 
 
-def test_a_new_table_no_camera_labelled_is_added_though_each_leg_is_one_cell_and_lone_cells_are_not():
+@pytest.mark.parametrize("size", [(1.2, 0.8), (2.2, 0.5), (1.95, 1.4)], ids=["table", "long-table", "bed"])
+def test_a_new_table_no_camera_labelled_is_added_though_each_leg_is_one_cell_and_lone_cells_are_not(size):
     # B's new table: four thin legs, a cell each, too small one by one to be a change; together,
-    # within a table's span, they are furniture. Two stray cells a metre apart elsewhere are noise
+    # within a table's span, they are furniture. Two stray cells a metre apart elsewhere are noise.
+    # A long table's or a bed's legs stand further apart than a chair's (two pairs 2 m apart:
+    # random:248, random:256's bed): four at the corners of a rectangle are furniture too
     a, b = Room(), Room()
-    b.unlabelled.append(("dining table", (5.0, 4.0), (1.2, 0.8), 0.3))
+    b.unlabelled.append(("dining table", (5.0, 4.0), size, 0.3))
     b.unlabelled_leg_half = 0.0
     b.loose_legs.clear()
-    for p in ((2.0, 6.0), (3.0, 6.2)):
+    # stray cells: two a metre apart, and four 1.5-2.5 m apart at no rectangle's corners
+    for p in ((2.0, 6.0), (3.0, 6.2), (1.0, 1.5), (2.5, 1.4), (1.3, 3.2), (3.4, 2.6)):
         b.walls.append((p[0], p[1], p[0], p[1]))
     r = _diff(a, b)
     assert r.counts()["static_added"] == 1, r.counts()
     added = _mask_world(r, 1)
-    legs = Room().legs((5.0, 4.0), (1.2, 0.8), 0.3)
+    legs = Room().legs((5.0, 4.0), size, 0.3)
     assert all(np.min(np.linalg.norm(added - leg, axis=1)) < 0.05 for leg in legs)
     assert not np.any(np.linalg.norm(added - (2.0, 6.0), axis=1) < 0.3)
+    assert not np.any(added[:, 0] < 3.6) and not np.any(added[:, 1] < 3.0)
 
 
 def test_a_new_cabinet_against_a_wall_has_its_side_faces_in_the_mask_up_to_the_wall():

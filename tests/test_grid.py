@@ -814,6 +814,59 @@ def test_a_pot_no_camera_saw_is_not_taken_for_a_pair_of_legs():
     assert cm.occupied[around(lay.spec, (-2.2, 1.8), 0.3)].sum() == 0
 
 
+def test_a_square_post_no_camera_saw_from_three_sides_stays_and_a_person_beside_it_goes():
+    """A pillar 34 cm square that the LiDAR saw on three sides and no camera saw (random:248: two faces
+    joined by the back one, a C as wide as long, with two lobes and a waist like two legs side by side)
+    stays in the map; a person standing beside it still goes. Two legs side by side are one leg thick
+    across; the post is as thick as it is long. (With a centimetre of range noise its faces are two cells
+    thick in places: no circle, unlike a one-cell outline.)"""
+    h = 0.17
+    world = World().room(-4, -4, 4, 4)
+    for a, b in (((-h, -h), (h, -h)), ((h, -h), (h, h)), ((h, h), (-h, h)), ((-h, h), (-h, -h))):
+        world.wall(a, b)
+    _person(world, (2.6, 0.0))
+    poses = []
+    for a in np.linspace(-1.4, 1.4, 24):  # from the +x side, round to either end face
+        x, y = 1.3 * math.cos(a), 1.3 * math.sin(a)
+        poses.append((x, y, math.atan2(-y, -x)))
+    poses += orbit((2.6, 0.0), 1.0, 16)  # (from the +x side too: the post's -x face stays unseen)
+    lay = fuse(world, poses, camera=False, noise=0.012, rng=np.random.default_rng(12)).layers()
+    cm = clean(lay, CleaningConfig(), NAMES)
+    post = around(lay.spec, (0.0, 0.0), 0.26)
+    seen = post & (lay.hits > 0)
+    assert seen.sum() > 20
+    # the three faces: cells on both the +y and -y faces and on the +x face
+    xs, ys = lay.spec.cell_centres()
+    assert (seen & (ys > 0.12)).any() and (seen & (ys < -0.12)).any() and (seen & (xs > 0.12)).any()
+    assert cm.dynamic_removed[post].sum() == 0
+    assert cm.occupied[post].sum() >= 0.9 * seen.sum()
+    assert cm.occupied[around(lay.spec, (2.6, 0.0), 0.3)].sum() == 0
+
+
+def test_a_cabinets_side_seen_down_a_corridor_with_a_few_cells_of_its_front_stays():
+    """A cabinet's side that the LiDAR saw only from far down a corridor (random:270:b, 7-12 m): a straight
+    face 45 cm long, one cell thick, with three cells of its front beside it (rays grazing along the front
+    cleared the rest). Wide in three places and narrow between, it has the lobes of two legs side by side;
+    but it lies on a straight run, and legs are round: it stays. Two legs beside it still go."""
+    from semmap.grid.fusion import GridLayers
+
+    spec = GridSpec(0.05, 0.0, 0.0, 60, 60)
+    occ = np.zeros(spec.shape, bool)
+    occ[30, 20:29] = True  # the side, 9 cells along x
+    occ[31, [21, 24, 26]] = True  # a few cells of the front
+    for c in (44, 49):  # a person's two legs, 25 cm apart, three cells across each
+        occ[29:32, c:c + 3] = True
+    hits = np.where(occ, 20, 0).astype(np.uint16)
+    free = np.where(occ, 0, 40).astype(np.uint16)
+    log_odds = np.where(occ, 3.0, -2.0).astype(np.float32)
+    mobility = np.zeros((4, *spec.shape), np.uint16)
+    mobility[0] = hits  # no camera label
+    layers = GridLayers(spec, log_odds, hits, free, mobility, np.zeros((0, *spec.shape), np.uint16), (), NAMES)
+    cm = clean(layers, CleaningConfig(), NAMES)
+    assert cm.occupied[30:32, 20:29].sum() == 12 and not cm.dynamic_removed[30:32, 20:29].any()
+    assert cm.occupied[29:32, 44:52].sum() == 0
+
+
 def test_a_person_the_camera_often_saw_through_a_beds_mask_leaves_whole():
     """Someone standing all tour behind a bed's foot: from one side the camera labels their legs
     "bed" (the frame covers them in the image), from the other "person". Summed, a third of the labels

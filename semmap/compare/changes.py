@@ -57,6 +57,9 @@ __all__ = [
 CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appeared", "object_disappeared",
                 "newly_explored", "no_longer_covered")
 
+#: the shortest side of a rectangle of legs (m): four blobs closer than this are one blob's noise
+_LEG_RECT_SHORTEST = 0.25
+
 # bits of the code image both sessions are resampled through
 _OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE = 1, 2, 4, 8, 16, 32
 
@@ -96,6 +99,9 @@ class ChangeSettings:
     #: obstacles, each too small for a change, within ``leg_span_m`` of each other are furniture
     min_fit_legs: int = 3
     leg_span_m: float = 1.3
+    #: ... or four such obstacles at the corners of a rectangle whose sides are ``leg_rect_m`` long at
+    #: most (a dining table or a bed, whose legs stand further apart than ``leg_span_m``)
+    leg_rect_m: float = 3.0
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -345,6 +351,48 @@ def _clusters(xy: NDArray[np.float64], link: float) -> NDArray[np.intp]:
     pairs = cKDTree(xy).query_pairs(link, output_type="ndarray")
     graph = coo_matrix((np.ones(pairs.shape[0]), (pairs[:, 0], pairs[:, 1])), shape=(xy.shape[0],) * 2)
     return np.asarray(connected_components(graph, directed=False)[1], np.intp)
+
+
+def _rectangles(xy: NDArray[np.float64], longest: float, shortest: float, tol: float
+                ) -> list[tuple[int, int, int, int]]:
+    """Sets of four points at the corners of a rectangle with sides from ``shortest`` to ``longest``:
+    two pairs of points (its diagonals) of one length and one midpoint, within ``tol``, crossing at
+    an angle that leaves each side at least ``shortest`` long. Each point is in one set at most; of
+    rival sets, the tightest."""
+    n = xy.shape[0]
+    if n < 4:
+        return []
+    pairs = cKDTree(xy).query_pairs(math.hypot(longest, longest) + tol, output_type="ndarray")
+    if pairs.shape[0] < 2:
+        return []
+    d = xy[pairs[:, 1]] - xy[pairs[:, 0]]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ok = length >= math.hypot(shortest, shortest) - tol
+    pairs, d, length = pairs[ok], d[ok], length[ok]
+    if pairs.shape[0] < 2:
+        return []
+    mid = 0.5 * (xy[pairs[:, 0]] + xy[pairs[:, 1]])
+    feats = np.column_stack([mid, length / 2.0])
+    cands = []
+    for i, j in cKDTree(feats).query_pairs(tol, output_type="ndarray"):
+        corners = {*pairs[i].tolist(), *pairs[j].tolist()}
+        if len(corners) < 4:
+            continue
+        # the rectangle's sides, from the diagonals' length and the angle between them
+        a = float(np.arctan2(d[i, 1], d[i, 0]) - np.arctan2(d[j, 1], d[j, 0]))
+        diag = 0.5 * (length[i] + length[j])
+        s1, s2 = abs(diag * math.sin(a / 2.0)), abs(diag * math.cos(a / 2.0))
+        if min(s1, s2) < shortest or max(s1, s2) > longest:
+            continue
+        a0, a1, a2, a3 = sorted(corners)
+        cands.append((float(np.linalg.norm(feats[i] - feats[j])), (a0, a1, a2, a3)))
+    out: list[tuple[int, int, int, int]] = []
+    used: set[int] = set()
+    for _, quad in sorted(cands):
+        if used.isdisjoint(quad):
+            out.append(quad)
+            used.update(quad)
+    return out
 
 
 def _legs(xy: NDArray[np.float64], link: float) -> NDArray[np.float64]:
@@ -1025,32 +1073,44 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
 
 
 def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int,
-              strong: NDArray[np.bool_] | None = None
+              strong: NDArray[np.bool_] | None = None, rect_cells: float = 0.0
               ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
-    whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces. With
-    ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
+    whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces; and,
+    with ``rect_cells``, first, sets of four at the corners of a rectangle whose sides are at most that
+    long (:func:`_rectangles`: a table's or a bed's legs, further apart than a chair's).
+    With ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
     people may be a person's two."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
-    if n < min_legs:
+    if n < min(min_legs, 4 if rect_cells > 0 else min_legs):
         return none
     rr, cc = np.nonzero(blobs)
     ids = blobs[rr, cc]
     count = np.bincount(ids, minlength=n + 1)[1:].astype(np.float64)
     centres = np.stack([np.bincount(ids, weights=rr, minlength=n + 1)[1:] / count,
                         np.bincount(ids, weights=cc, minlength=n + 1)[1:] / count], axis=1)
-    roots = _clusters(centres, span_cells)
-    big = [r for r, c in zip(*np.unique(roots, return_counts=True), strict=True) if c >= min_legs]
-    if strong is not None:
-        is_strong = np.bincount(ids, weights=strong[rr, cc], minlength=n + 1)[1:] > 0
-        big = [r for r in big if int(is_strong[roots == r].sum()) >= 2]
-    if not big:
-        return none
+    is_strong = np.ones(n, bool) if strong is None else \
+        np.bincount(ids, weights=strong[rr, cc], minlength=n + 1)[1:] > 0
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
-    for k, r in enumerate(big, start=1):
-        group[1:][roots == r] = k
+    k = 0
+    if rect_cells > 0:  # (first: four corners of a rectangle are the stronger shape)
+        for quad in _rectangles(centres, rect_cells, _LEG_RECT_SHORTEST / spec.resolution, 2.0):
+            idx = np.asarray(quad, np.intp)
+            if int(is_strong[idx].sum()) >= 2:
+                k += 1
+                group[1:][idx] = k
+    left = np.flatnonzero(group[1:] == 0)
+    if left.size >= min_legs:
+        roots = _clusters(centres[left], span_cells)
+        for r, c in zip(*np.unique(roots, return_counts=True), strict=True):
+            if c >= min_legs and int(is_strong[left[roots == r]].sum()) >= 2:
+                k += 1
+                group[1:][left[roots == r]] = k
+    if k == 0:
+        return none
+    big = list(range(k))
     sets = group[ids]
     lab = np.zeros(cells.shape, np.int32)
     lab[rr, cc] = sets
@@ -1452,7 +1512,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # voided as people's count too, and join the set, when two of its legs stand away from people
         # (a table a person stood at, whose map dropped cells beside two of its legs)
         f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided, spec, kind, st.leg_span_m / res, st.min_fit_legs,
-                                   ~people)
+                                   ~people, st.leg_rect_m / res)
         if i2:
             off = int(labels.max())
             on_sets = l2 > 0

@@ -399,13 +399,15 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
 
+    # per blob, the share of its cells on straight runs (``wall_min_length``, 40 cm, or longer)
+    area = stats[:, cv2.CC_STAT_AREA]
+    on_run = structure
+    straight = np.bincount(lab[on_run], minlength=n) / np.maximum(area, 1)
     # walls and large furniture may be near (people stand by them); small blobs may not
     structure = structure | (w > cfg.structure_min_size)[lab]
     rad = int(math.ceil(reach / res))
     yy, xx = np.mgrid[-rad:rad + 1, -rad:rad + 1]
     disc = (xx * xx + yy * yy) * res * res <= reach * reach
-
-    area = stats[:, cv2.CC_STAT_AREA]
 
     def alone(p: NDArray[np.float64], blobs: Sequence[int], thin_near: bool = False) -> bool:
         """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame); with
@@ -446,7 +448,10 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     for b in np.flatnonzero((w >= lo) & (w <= s_hi + hi) & ~veto & ~person):
         if not alone(xy[b], (int(b),)):
             continue
-        pts = np.asarray(np.column_stack(np.nonzero(lab == b))[:, ::-1] * res, np.float64)
+        rows, cols = np.nonzero(lab == b)
+        pts = np.asarray(np.column_stack([cols, rows]) * res, np.float64)
+        if straight[b] >= 0.5 and _face(pts, on_run[rows, cols], res):
+            continue
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         # cell centres lie on whole cells: a width measured from them in float32 is a whole number of
         # cells to within rounding, and a blob exactly ``lo`` across must not fall on either side by chance
@@ -457,10 +462,27 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             continue
         if _one_ring(pts, res):  # a pot, a bin, a round post: one circle, where two legs are two
             continue
-        # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round
-        if lo <= thick <= hi - res + 0.02 * res or _two_lobes(pts, res, lo):
+        # a flat face (a pillar's side seen from one side) is a cell or two thick: legs are round. Two
+        # legs side by side are one leg thick across, however they stand: a square post seen from three
+        # sides (two faces joined by the back one, a C as wide as long) has two lobes too, but is wider
+        if lo <= thick <= hi - res + 0.02 * res or (thick <= hi + 0.02 * res and _two_lobes(pts, res, lo)):
             person[b] = True
     return person[lab]
+
+
+def _face(pts: NDArray[np.float64], on_run: NDArray[np.bool_], res: float) -> bool:
+    """Whether a blob (cell centres, m) mostly on a straight run (``on_run``) is a face: its other cells
+    all lie on one side of the run (a cabinet's side seen down a corridor, with a few cells of its front
+    that rays grazing along it left). Two legs seen all round, in line with each other, put a run through
+    both; their rings have cells on both sides of it."""
+    run = pts[on_run]
+    off = pts[~on_run]
+    if run.shape[0] < 2 or off.shape[0] == 0:
+        return True
+    c = run.mean(axis=0)
+    _, _, vt = np.linalg.svd(run - c, full_matrices=False)
+    side = (off - c) @ vt[1]
+    return not (bool((side > 0.5 * res).any()) and bool((side < -0.5 * res).any()))
 
 
 #: person labels a leg blob (or two) needs at the least before they can outweigh furniture labels: more

@@ -827,7 +827,10 @@ class CleaningConfig(_Model):
     transient_ratio: float = Field(2.0, ge=0, le=1000, description="an occupied cell no camera labelled, off the "
                                                                    "walls, that scans saw free at least this many "
                                                                    "times as often as they hit it is someone who "
-                                                                   "paused there, and is dropped (0: off)")
+                                                                   "paused there, and is dropped; one touching an "
+                                                                   "obstacle that stays is its rim (rays grazing "
+                                                                   "a thin leg), freed but not dropped as dynamic "
+                                                                   "(0: off)")
     person_max_size: float = Field(1.0, ge=0, le=10, description="a blob of touching cells up to this long that "
                                                                 "holds dynamic evidence leaves whole, m")
     label_spread_distance: float = Field(0.6, ge=0, le=100, description="unlabelled cells take their object's "

@@ -746,12 +746,17 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
 
     # cells seen free far more often than hit, with no camera label: someone who paused there
     # (their hits keep the log-odds up only because they were the last word), not furniture
+    grazed = np.zeros(occ.shape, bool)
     if cfg.transient_ratio > 0:
         transient = occ & ~runs.on & (lab == 0) & (layers.free >= cfg.transient_ratio * layers.hits.astype(np.float32))
         if transient.any():
-            dyn |= transient
-            semi &= ~dyn
-            undecided &= ~dyn
+            # the rim of an obstacle that stays (a thin leg's outer cells, which rays grazing past it
+            # cleared) is floor too, but no one paused there: free, not dropped as dynamic
+            stays = occ & ~dyn & ~transient
+            grazed = transient & cv2.dilate(stays.astype(np.uint8), _KERNEL3).astype(bool)
+            dyn |= transient & ~grazed
+            semi &= ~(dyn | grazed)
+            undecided &= ~(dyn | grazed)
 
     # furniture faces the camera did not label: an unlabelled straight run that meets a
     # semi-static cell and is no longer than the longest piece of furniture is part of it
@@ -814,9 +819,9 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         semi |= undecided & leg[blob] & ~dyn
 
     dropped = occ & dyn
-    occupied = occ & ~dropped
+    occupied = occ & ~dropped & ~grazed
     semi_static = occupied & semi
-    free = (free | dropped) & ~occupied
+    free = (free | dropped | grazed) & ~occupied
     unknown = ~(occupied | free)
     return occupied, free, unknown, semi_static, dropped
 

@@ -1084,7 +1084,7 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
-    if n < min(min_legs, 4 if rect_cells > 0 else min_legs):
+    if n < (min(min_legs, 4) if rect_cells > 0 else min_legs):  # (a rectangle has four)
         return none
     rr, cc = np.nonzero(blobs)
     ids = blobs[rr, cc]
@@ -1110,11 +1110,10 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
                 group[1:][left[roots == r]] = k
     if k == 0:
         return none
-    big = list(range(k))
     sets = group[ids]
     lab = np.zeros(cells.shape, np.int32)
     lab[rr, cc] = sets
-    m = len(big) + 1
+    m = k + 1
     size = np.bincount(sets, minlength=m)
     sum_r = np.bincount(sets, weights=rr, minlength=m)
     sum_c = np.bincount(sets, weights=cc, minlength=m)

@@ -482,11 +482,12 @@ def test_a_chair_one_session_listed_as_two_pieces_moved_is_one_move():
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
 
 
-def _one_move_one_end_labelled(here, there, labelled_in):
+def _one_move_one_end_labelled(here, there, labelled_in, leg_half=0.02):
     """Diff a room whose object stood at ``here`` in A and ``there`` in B, listed as an object only in
-    session ``labelled_in`` (plain obstacles in the other); assert it is one move of its class and
-    nothing else. Returns the result and the move."""
+    session ``labelled_in`` (plain obstacles in the other, legs ``leg_half`` wide either side of their
+    cell); assert it is one move of its class and nothing else. Returns the result and the move."""
     a, b = Room(), Room()
+    a.unlabelled_leg_half = b.unlabelled_leg_half = leg_half
     if labelled_in == "A":
         a.objects.append(here)
         b.unlabelled.append(there)
@@ -581,6 +582,47 @@ def test_a_chair_moved_from_against_a_wall_to_where_no_camera_saw_it_is_one_move
     assert np.linalg.norm(_world(mv.to_xy) - (4.5, 5.5)) < 0.05
     assert np.linalg.norm(_world(mv.from_xy) - (3.0, 7.73)) < 0.05
     assert mv.displacement_m == pytest.approx(math.hypot(1.5, 2.23), abs=0.05)
+
+
+@pytest.mark.parametrize("labelled_in", ["A", "B"])
+def test_a_table_no_camera_labelled_at_one_end_whose_legs_stand_apart_is_one_move(labelled_in):
+    # a table 0.95 x 0.6 m: its legs stand 0.54 m apart or more, further than the diff joins cells into
+    # one piece (0.5 m), so at the end no camera labelled each leg is a piece of one cell. Together they
+    # are the table's four legs, which fit the labelled table's (random:256's table): one move
+    here, there = ("dining table", (6.0, 3.0), (0.95, 0.6), 0.0), ("dining table", (6.4, 4.6), (0.95, 0.6), 0.4)
+    _, mv = _one_move_one_end_labelled(here, there, labelled_in, leg_half=0.0)
+    assert np.linalg.norm(_world(mv.from_xy) - here[1]) < 0.05
+    assert np.linalg.norm(_world(mv.to_xy) - there[1]) < 0.05
+
+
+@pytest.mark.parametrize("a_saw", ["wall", "floor"])
+def test_a_table_no_camera_labelled_that_stood_along_a_wall_and_moved_into_the_room_is_one_move(a_saw):
+    # A's table stood with its back legs against the north wall, which A's map holds as part of the wall;
+    # no camera labelled it, so all A has of it is its two front legs, 1.5 m apart. B's camera labelled
+    # it in the room. Two legs fit any pair of a table's legs; here B's other two land on A's wall, where
+    # A could not tell legs from wall (random:235, random:248): a table moved. Where A saw floor behind
+    # the two legs instead, they are no table of B's: no move
+    table_a, table_b = ((3.0, 7.58), (1.6, 0.8), 0.0), ((5.0, 5.0), (1.6, 0.8), math.radians(30))
+    if a_saw == "floor":  # in the room: A saw floor where its back legs would have stood
+        table_a = ((3.0, 6.5), (1.6, 0.8), 0.0)
+    a, b = Room(), Room()
+    legs = Room().legs(*table_a)
+    cells = legs if a_saw == "wall" else [leg for leg in legs if leg[1] < table_a[0][1]]
+    for x, y in cells:  # plain obstacles of a cell each, in no object
+        a.walls.append((x, y, x, y))
+    b.objects.append(("dining table", *table_b))
+    r = _diff(a, b)
+    counts = r.counts()
+    if a_saw == "floor":
+        assert counts["object_moved"] == 0 and counts["object_appeared"] == 1, counts
+        return
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_appeared"] == counts["object_disappeared"] == counts["static_removed"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "dining table"
+    # where it stood is known from two one-cell legs and B's legs laid on A's wall: to a cell and a half
+    assert np.linalg.norm(_world(mv.from_xy) - table_a[0]) < 0.075
+    assert np.linalg.norm(_world(mv.to_xy) - table_b[0]) < 0.05
 
 
 def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():

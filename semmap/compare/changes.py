@@ -755,7 +755,7 @@ def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[
 
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
                          objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None,
-                         own_walls: NDArray[np.bool_] | None = None
+                         own_walls: NDArray[np.bool_] | None = None, piece_walls: NDArray[np.bool_] | None = None
                          ) -> tuple[list[tuple[_Obj, _Obj]], set[int]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
@@ -771,13 +771,21 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     on the object's own cells join the piece. ``own_walls`` (the objects' session's obstacles grown by
     the fit's tolerance, on the common grid): legs of the piece that the motion lays on them are
     explained (:func:`_shape_fit`): a chair that stood with two legs against a wall, which that session
-    saw as two legs and a wall. Only the piece's legs: the piece, a handful of cells, is no evidence of
-    legs the object's own session saw apart. Also returns the ids of the pieces' objects paired so."""
+    saw as two legs and a wall. ``piece_walls`` (the pieces' session's obstacles, grown alike): when
+    that fit has too few legs, the object's legs the motion lays on them are explained instead, every
+    leg of the piece still on a leg of the object: a table that stood along a wall, of which the
+    piece's session saw two legs and a wall. A piece is also taken with the other pieces within the
+    object's length of it (up to four): a table's legs stand further apart than pieces are joined.
+    Also returns the ids of the pieces' objects paired through hidden legs."""
     res = spec.resolution
     hidden_a = hidden_b = None
     if own_walls is not None:
         lookup = functools.partial(_lookup, own_walls, spec)
         hidden_a, hidden_b = (lookup, None) if objects_in_a else (None, lookup)
+    piece_hidden: tuple[Any, Any] | None = None
+    if piece_walls is not None:
+        lookup = functools.partial(_lookup, piece_walls, spec)
+        piece_hidden = (None, lookup) if objects_in_a else (lookup, None)
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
     through_hidden: set[int] = set()
@@ -790,8 +798,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
         best, best_q, best_cells, best_hidden = None, 0.0, None, False
         o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
-        for k, piece in enumerate(pieces):
-            if k in used or piece.shape[0] < 2:
+        for ks, piece in _piece_groups(pieces, used, oxy, length, st.max_move_m, spec):
+            if piece.shape[0] < 2:
                 continue
             cells = piece
             if o_tree is not None and own is not None and \
@@ -808,6 +816,12 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
             turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
             q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
+            if legs < st.min_fit_legs and piece_hidden is not None:
+                # or the piece's own session holds some of the object's legs in its wall: a table that
+                # stood along a wall, whose two far legs are all that session saw of it
+                q2, legs2, hid2 = _shape_fit(src, dst, turns, res, piece_hidden[0], piece_hidden[1], st.min_fit_legs)
+                if legs2 >= st.min_fit_legs:
+                    q, legs, by_hidden = q2, legs2, hid2
             if q < st.unlabelled_fit or q <= best_q:
                 continue
             if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle
@@ -815,15 +829,37 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     o_arc = (_piece_arc(o.cells, length, spec),)
                 if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
                     continue
-            best, best_q, best_cells, best_hidden = k, q, cells, by_hidden
+            best, best_q, best_cells, best_hidden = ks, q, cells, by_hidden
         if best is None or best_cells is None:
             continue
-        used.add(best)
+        used.update(best)
         twin = _piece_object(best_cells, o.src.class_name, spec)
         out.append((o, twin) if objects_in_a else (twin, o))
         if best_hidden:
             through_hidden.add(id(twin))
     return out, through_hidden
+
+
+def _piece_groups(pieces: list[NDArray[np.intp]], used: set[int], oxy: NDArray[np.float64], length: float,
+                  max_move: float, spec: GridSpec) -> list[tuple[tuple[int, ...], NDArray[np.intp]]]:
+    """The pieces an object may have moved to or from (within ``max_move`` of it, not ``used``): each
+    alone, and each with the others within ``length`` (the object's) of it, up to four in all (a table's
+    legs, which stand further apart than the pieces' grouping joins)."""
+    res = spec.resolution
+    centre = oxy.mean(axis=0)
+    near = [k for k, p in enumerate(pieces) if k not in used and
+            float(np.linalg.norm(_cells_xy(p, spec).mean(axis=0) - centre)) <= max_move + length]
+    out: list[tuple[tuple[int, ...], NDArray[np.intp]]] = [((k,), pieces[k]) for k in near]
+    trees = {k: cKDTree(_cells_xy(pieces[k], spec)) for k in near}
+    seen: set[tuple[int, ...]] = set()
+    for k in near:
+        xy = _cells_xy(pieces[k], spec)
+        group = tuple(sorted([k] + [j for j in near if j != k and
+                                    float(trees[j].query(xy)[0].min()) <= length + res]))
+        if 1 < len(group) <= 4 and group not in seen:
+            seen.add(group)
+            out.append((group, np.concatenate([pieces[j] for j in group])))
+    return out
 
 
 def _piece_arc(cells: NDArray[np.intp], length: float, spec: GridSpec) -> float | None:
@@ -1363,7 +1399,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 continue
             whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
             partners, hidden_twins = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group),
-                                                          spec, st, in_a, other, walls_of(in_a))
+                                                          spec, st, in_a, other, walls_of(in_a),
+                                                          walls_of(not in_a))
             moved += partners
             through_hidden |= hidden_twins
             done = {id(p[0] if in_a else p[1]) for p in partners}

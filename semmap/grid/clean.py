@@ -387,10 +387,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         share = cfg.person_leg_veto_share * np.bincount(lab[on], hits[on].astype(np.float64), n)
         furniture = veto & (np.bincount(lab[on], semi[on], n) >= share)
         built = np.bincount(lab[static_veto], minlength=n) > 0
-        veto = furniture | built
         if static is not None:
             built &= np.bincount(lab[on], static[on].astype(np.float64), n) >= share
-        pair_veto = furniture | built
+        veto = pair_veto = furniture | built
         if dynamic is not None and labelled is not None and cfg.person_leg_seen_share > 0:
             seen_dyn = np.bincount(lab[on], dynamic[on].astype(np.float64), n)
             seen_lab = np.bincount(lab[on], labelled[on].astype(np.float64), n)
@@ -412,7 +411,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     def alone(p: NDArray[np.float64], blobs: Sequence[int], thin_near: bool = False) -> bool:
         """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame); with
         ``thin_near``, bar blobs far smaller than the smallest of them: a chair's thin leg, a cell or
-        two, beside two blobs of five cells or more does not make them a chair (its legs are alike)."""
+        two, beside two blobs of five cells or more does not make them a chair (its legs are alike).
+        One blob is two legs: each is half of it."""
         r, c = int(round(p[1] / res)), int(round(p[0] / res))
         r0, c0 = r - rad, c - rad
         win = lab[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]
@@ -422,10 +422,11 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if not others.size:
             return True
         own = list(blobs)
-        if (not thin_near or area[own].min() * res * res < _LEG_MIN_AREA - 1e-9
+        leg_area = float(area[own].min()) / (2.0 if len(own) == 1 else 1.0)
+        if (not thin_near or leg_area * res * res < _LEG_MIN_AREA - 1e-9
                 or w[own].min() < _LEG_MIN_EXTENT - 1e-9):
             return False
-        small = (area[others] <= _LEG_NEIGHBOUR_SHARE * area[own].min()) & (w[others] <= lo)
+        small = (area[others] <= _LEG_NEIGHBOUR_SHARE * leg_area) & (w[others] <= lo)
         return bool(small.all())
 
     person = np.zeros(n, bool)
@@ -446,16 +447,18 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     # between them when seen from all around. A blob no longer than one leg is wide is two legs only
     # when it has that waist (a post or a bin that size is round)
     for b in np.flatnonzero((w >= lo) & (w <= s_hi + hi) & ~veto & ~person):
-        if not alone(xy[b], (int(b),)):
-            continue
         rows, cols = np.nonzero(lab == b)
         pts = np.asarray(np.column_stack([cols, rows]) * res, np.float64)
-        if straight[b] >= 0.5 and _face(pts, on_run[rows, cols], res):
-            continue
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         # cell centres lie on whole cells: a width measured from them in float32 is a whole number of
         # cells to within rounding, and a blob exactly ``lo`` across must not fall on either side by chance
         thick = min(bw, bh) + 0.01 * res
+        # (a chair's thin leg beside it does not make a blob a leg thick across a chair: a person stood
+        # by the chair; a face a cell or two thick has no such allowance)
+        if not alone(xy[b], (int(b),), thin_near=thick >= lo):
+            continue
+        if straight[b] >= 0.5 and _face(pts, on_run[rows, cols], res):
+            continue
         if w[b] <= hi:
             # seen from around (a leg wide across both ways; an arc, a post seen from one side, is not)
             person[b] = thick >= lo and _two_lobes(pts, res, lo)

@@ -625,6 +625,28 @@ def test_a_table_no_camera_labelled_that_stood_along_a_wall_and_moved_into_the_r
     assert np.linalg.norm(_world(mv.to_xy) - table_b[0]) < 0.05
 
 
+def test_a_bed_moved_along_its_length_from_a_wall_is_fitted_on_the_legs_a_saw_not_on_the_nearest_pair():
+    """A's bed stood with its head against the west wall: A's map holds the head legs as part of the wall,
+    and its object the two foot legs. B's bed stands 2.5 m further east, all four legs labelled. A's two
+    legs fit either pair of B's: on B's head legs (a move of 0.56 m) or on its foot legs (2.5 m). The
+    short one carries B's foot legs back into the middle of the room, one onto a stray flagged cell of
+    A's and one onto floor A saw free; the long one carries B's head legs back onto A's wall, where A
+    could not tell them apart (random:238 fitted a bed's two legs on the wrong pair: 2.56 m for a move
+    of 1.80 m)."""
+    a, b = Room(), Room()
+    a.objects.append(("bed", (1.0, 4.0), (2.0, 0.8), 0.0))
+    a.unseen_legs[0] = (0, 3)  # the head legs (x = 0.03): part of the wall
+    a.loose_legs.append((3.91, 3.63))  # a stray flagged cell where the short fit lays one of B's foot legs
+    b.objects.append(("bed", (3.5, 4.0), (2.0, 0.8), 0.0))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.displacement_m == pytest.approx(2.5, abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (3.5, 4.0)) < 0.05
+
+
 def test_a_chair_inside_the_box_the_build_drew_for_a_bed_is_the_chairs():
     # A's build drew the bed's box over the chair beside it (and listed the bed after it). The build
     # grouped the chair's legs into the chair, so its move is one move and the bed did not change

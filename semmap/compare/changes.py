@@ -436,7 +436,8 @@ def _leg_pair_turns(legs_a: NDArray[np.float64], legs_b: NDArray[np.float64], to
 
 
 def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[float, ...], res: float,
-                contradicts: Any = None, furniture_a: Any = None, furniture_b: Any = None) -> NDArray[np.float64]:
+                contradicts: Any = None, furniture_a: Any = None, furniture_b: Any = None,
+                contradicts_back: Any = None) -> NDArray[np.float64]:
     """The rigid motion (x, y, yaw) taking an object's cells ``src`` (session A) onto its cells ``dst``
     (session B). The sessions may have seen different legs of it (two of a bed's four in one, three
     in the other), so the centroids need not correspond: every pairing of a leg of A with a leg of B,
@@ -465,8 +466,9 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
             hit_a |= furniture_b(moved)
         explained_b, explained_a = np.count_nonzero(hit_b), np.count_nonzero(hit_a)
         bad = np.count_nonzero(contradicts(moved) & ~hit_a) if contradicts is not None else 0
+        bad_b = np.count_nonzero(contradicts_back(back) & ~hit_b) if contradicts_back is not None else 0
         shift = float(np.linalg.norm(se2_apply(pose, cs[None])[0] - cs))
-        return (explained_b / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
+        return ((explained_b - bad_b) / dst.shape[0] + (explained_a - bad) / src.shape[0]) - 1e-3 * shift
 
     # the best hypotheses of each turn are refined: a turn whose raw placements all sit a little off
     # (an L of a couch's front and side in A, its front alone in B: no leg pairing lines them up)
@@ -1432,6 +1434,16 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         def contradicts(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
             return _lookup(b_contra, spec, xy, True)
 
+        # and an object of B carried back, on floor A saw free with nothing A glimpsed there (a thin leg
+        # A's map lost is no floor): two legs of a bed fit either pair of its four, and the other pair
+        # carried back lands where A saw its legs, or on A's floor
+        a_seen = lo.occ_a if lo.glimpse_a is None else lo.occ_a | lo.glimpse_a
+        a_seen = a_seen if lo.faint_a is None else a_seen | lo.faint_a
+        a_contra = (lo.free_a & ~_dilate(a_seen, 1.5)) | ~_dilate(obs_a, 0.5 / res)
+
+        def contradicts_back(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+            return _lookup(a_contra, spec, xy, True)
+
         def furniture_a(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
             return _lookup(furn_a, spec, xy)
 
@@ -1472,7 +1484,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             if id(oa) in through_hidden or id(ob) in through_hidden:
                 # paired on legs the other session's walls hid: those walls explain them here too
                 fa, fb = hidden_too(furniture_a, True), hidden_too(furniture_b, False)
-            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, fa, fb)
+            motion = _fit_motion(src_xy, dst_xy, turns, res, contradicts, fa, fb, contradicts_back)
             # cells with an obstacle of the other session where they are (a neighbour that did not
             # move, grouped with the object) say nothing of where it went; keep three or more
             keep_a = ~near_b[cells_a[:, 0], cells_a[:, 1]]

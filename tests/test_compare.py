@@ -976,6 +976,23 @@ def test_a_couch_replaced_where_it_stood_by_one_of_another_shape_is_gone_and_new
         assert added.shape[0] == removed.shape[0] == 0
 
 
+def test_a_new_table_whose_build_grouped_the_wall_behind_it_is_reported_where_it_appeared():
+    # B's new table: its legs (two seen) in the room, and a stretch of the wall behind it whose cells its
+    # labels bled onto, listed with it: the object's box reaches the wall. The wall is there in A too,
+    # so only the legs appeared, and the change is reported at them (random:266 reported a new table
+    # 0.55 m off, at its box's middle: a "change" where nothing changed)
+    a, b = Room(), Room()
+    legs = [(4.6, 7.0), (5.2, 7.0)]
+    segs = [(x - 0.02, y + dy, x + 0.02, y + dy) for x, y in legs for dy in (0.0, 0.04)]
+    segs.append((5.6, 8.0, 5.85, 8.0))  # on the north wall
+    b.faces.append(("dining table", segs))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_appeared"] == 1 and counts["static_added"] == 0, counts
+    (table,) = r.of_type("object_appeared")
+    assert np.linalg.norm(_world(table.centroid) - (4.92, 7.02)) < 0.05
+
+
 def test_a_new_couch_its_build_grouped_with_the_couch_beside_it_is_new():
     # A saw a couch's front and floor east of it. B has a second couch there, end to end with it, and
     # its build listed both as one couch object, 4.3 m long: longer than any couch, so not the couch

@@ -691,14 +691,25 @@ def test_a_person_no_camera_saw_standing_beside_a_chair_leaves_and_the_chair_sta
         assert cm.occupied[around(lay.spec, leg, 0.07)].any(), f"furniture leg at {leg} was dropped"
 
 
+def _unlabelled_layers(spec: GridSpec, occ, hits_per_cell: int):
+    """Grid layers where ``occ`` was hit ``hits_per_cell`` times a cell and never seen free, the rest seen
+    free 40 times and never hit; no camera label anywhere."""
+    from semmap.grid.fusion import GridLayers
+
+    hits = np.where(occ, hits_per_cell, 0).astype(np.uint16)
+    free = np.where(occ, 0, 40).astype(np.uint16)
+    log_odds = np.where(occ, 3.0, -2.0).astype(np.float32)
+    mobility = np.zeros((4, *spec.shape), np.uint16)
+    mobility[0] = hits
+    return GridLayers(spec, log_odds, hits, free, mobility, np.zeros((0, *spec.shape), np.uint16), (), NAMES)
+
+
 def test_a_person_feet_together_beside_a_chair_leaves_and_a_thin_face_beside_a_leg_stays():
     """Someone standing all tour where no camera looked, their legs touching (one blob two legs long), a
     chair's thin leg 0.48 m from them (random:267 kept such a person: 18 cells, a chair leg of two). The
     chair's leg is far smaller than either of the person's: they leave, the chair stays. A face a cell
     thick with two lobes (a cabinet's side seen from afar, random:246:b) is no leg thick across: a leg
     beside it still makes it furniture, and it stays."""
-    from semmap.grid.fusion import GridLayers
-
     spec = GridSpec(0.05, 0.0, 0.0, 60, 60)
     occ = np.zeros(spec.shape, bool)
     # the person: two legs three cells across, touching, seven cells along y
@@ -712,13 +723,7 @@ def test_a_person_feet_together_beside_a_chair_leaves_and_a_thin_face_beside_a_l
     occ[46:48, 24] = True  # a leg of something beside it, 0.25 m off
     face = occ.copy()
     face[:35] = face[46:] = False
-    hits = np.where(occ, 100, 0).astype(np.uint16)
-    free = np.where(occ, 0, 40).astype(np.uint16)
-    log_odds = np.where(occ, 3.0, -2.0).astype(np.float32)
-    mobility = np.zeros((4, *spec.shape), np.uint16)
-    mobility[0] = hits  # no camera label
-    layers = GridLayers(spec, log_odds, hits, free, mobility, np.zeros((0, *spec.shape), np.uint16), (), NAMES)
-    cm = clean(layers, CleaningConfig(), NAMES)
+    cm = clean(_unlabelled_layers(spec, occ, 100), CleaningConfig(), NAMES)
     assert cm.occupied[20:27, 20:23].sum() == 0
     assert cm.occupied[15:17, 27].all()
     assert cm.occupied[face].all()
@@ -886,21 +891,13 @@ def test_a_cabinets_side_seen_down_a_corridor_with_a_few_cells_of_its_front_stay
     face 45 cm long, one cell thick, with three cells of its front beside it (rays grazing along the front
     cleared the rest). Wide in three places and narrow between, it has the lobes of two legs side by side;
     but it lies on a straight run, and legs are round: it stays. Two legs beside it still go."""
-    from semmap.grid.fusion import GridLayers
-
     spec = GridSpec(0.05, 0.0, 0.0, 60, 60)
     occ = np.zeros(spec.shape, bool)
     occ[30, 20:29] = True  # the side, 9 cells along x
     occ[31, [21, 24, 26]] = True  # a few cells of the front
     for c in (44, 49):  # a person's two legs, 25 cm apart, three cells across each
         occ[29:32, c:c + 3] = True
-    hits = np.where(occ, 20, 0).astype(np.uint16)
-    free = np.where(occ, 0, 40).astype(np.uint16)
-    log_odds = np.where(occ, 3.0, -2.0).astype(np.float32)
-    mobility = np.zeros((4, *spec.shape), np.uint16)
-    mobility[0] = hits  # no camera label
-    layers = GridLayers(spec, log_odds, hits, free, mobility, np.zeros((0, *spec.shape), np.uint16), (), NAMES)
-    cm = clean(layers, CleaningConfig(), NAMES)
+    cm = clean(_unlabelled_layers(spec, occ, 20), CleaningConfig(), NAMES)
     assert cm.occupied[30:32, 20:29].sum() == 12 and not cm.dynamic_removed[30:32, 20:29].any()
     assert cm.occupied[29:32, 44:52].sum() == 0
 

@@ -849,15 +849,14 @@ def _piece_groups(pieces: list[NDArray[np.intp]], used: set[int], oxy: NDArray[n
     legs, which stand further apart than the pieces' grouping joins)."""
     res = spec.resolution
     centre = oxy.mean(axis=0)
-    near = [k for k, p in enumerate(pieces) if k not in used and
-            float(np.linalg.norm(_cells_xy(p, spec).mean(axis=0) - centre)) <= max_move + length]
+    xys = {k: _cells_xy(p, spec) for k, p in enumerate(pieces) if k not in used}
+    near = [k for k, xy in xys.items() if float(np.linalg.norm(xy.mean(axis=0) - centre)) <= max_move + length]
     out: list[tuple[tuple[int, ...], NDArray[np.intp]]] = [((k,), pieces[k]) for k in near]
-    trees = {k: cKDTree(_cells_xy(pieces[k], spec)) for k in near}
+    trees = {k: cKDTree(xys[k]) for k in near}
     seen: set[tuple[int, ...]] = set()
     for k in near:
-        xy = _cells_xy(pieces[k], spec)
         group = tuple(sorted([k] + [j for j in near if j != k and
-                                    float(trees[j].query(xy)[0].min()) <= length + res]))
+                                    float(trees[j].query(xys[k])[0].min()) <= length + res]))
         if 1 < len(group) <= 4 and group not in seen:
             seen.add(group)
             out.append((group, np.concatenate([pieces[j] for j in group])))

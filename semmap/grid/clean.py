@@ -389,7 +389,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         built = np.bincount(lab[static_veto], minlength=n) > 0
         if static is not None:
             built &= np.bincount(lab[on], static[on].astype(np.float64), n) >= share
-        veto = pair_veto = furniture | built
+        pair_veto = furniture | built
+        veto = pair_veto.copy()  # (the person labels below lift the veto on one blob, not on a pair)
         if dynamic is not None and labelled is not None and cfg.person_leg_seen_share > 0:
             seen_dyn = np.bincount(lab[on], dynamic[on].astype(np.float64), n)
             seen_lab = np.bincount(lab[on], labelled[on].astype(np.float64), n)

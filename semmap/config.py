@@ -824,6 +824,12 @@ class CleaningConfig(_Model):
                                                                       "legs seen under a bed's or a table's edge, "
                                                                       "painted through its mask in most frames and "
                                                                       "as a person's in the rest (0: off)")
+    person_leg_min_density: float = Field(0.15, ge=0, le=100, description="the legs rule judges only blobs whose "
+                                                                         "cells gathered at least this share of the "
+                                                                         "returns per cell of the map's obstacles "
+                                                                         "(their median): a blob seen by a few "
+                                                                         "returns, from afar or in a few scans, is "
+                                                                         "a smear whose shape says nothing (0: off)")
     transient_ratio: float = Field(2.0, ge=0, le=1000, description="an occupied cell no camera labelled, off the "
                                                                    "walls, that scans saw free at least this many "
                                                                    "times as often as they hit it is someone who "

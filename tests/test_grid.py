@@ -729,6 +729,56 @@ def test_a_person_feet_together_beside_a_chair_leaves_and_a_thin_face_beside_a_l
     assert cm.occupied[face].all()
 
 
+def _two_legs(occ, row: int, col: int) -> None:
+    """A person's two legs as the map holds them: blobs of 11 cells, 0.2 m across, centres 0.25 m apart."""
+    for c0 in (col, col + 5):
+        occ[row:row + 3, c0:c0 + 4] = True
+        occ[row, c0] = False
+
+
+def test_a_person_beside_a_table_leg_leaves_and_a_leg_half_their_size_is_no_sign_of_furniture():
+    """Someone standing all tour where no camera looked, half a metre from a table's leg that beams
+    smeared into a blob of five cells and 15 cm (random:327:b kept such a person, 15 cells). Their legs
+    hold eleven cells each, more than twice the table leg's, so it does not make them furniture: they
+    leave and the leg stays. Beside a blob more than half their size (another leg alike: a stool's),
+    the two stay."""
+    spec = GridSpec(0.05, 0.0, 0.0, 80, 60)
+    occ = np.zeros(spec.shape, bool)
+    _two_legs(occ, 20, 20)  # their middle at column 24.1
+    occ[21, 33:36] = True  # the table's leg: five cells, three along x, 0.45-0.55 m from their middle
+    occ[22, 33:35] = True
+    _two_legs(occ, 20, 50)  # the same two blobs beside one of seven cells: a fatter leg, of the same stool
+    occ[20:23, 63:66] = True
+    occ[20, 63] = occ[22, 65] = False
+    cm = clean(_unlabelled_layers(spec, occ, 100), CleaningConfig(), NAMES)
+    assert cm.occupied[18:25, 18:31].sum() == 0, "the person beside the table leg stayed"
+    assert cm.occupied[21:23, 33:36].sum() == 5, "the table leg was dropped"
+    assert cm.occupied[18:25, 48:68].sum() == occ[18:25, 48:68].sum() == 29, "the stool's legs were dropped"
+
+
+def test_legs_seen_by_a_few_returns_stay_and_the_same_legs_seen_well_leave():
+    """A blob's shape says something only where the LiDAR saw it well. Two leg-shaped blobs whose cells
+    gathered 4 returns each, where the map's obstacles gathered 100 (a table leg seen across a room,
+    smeared over a dozen cells; far walls' sparse returns), are no pair of legs and stay: on 96
+    development maps such blobs were 78 of the 194 cells of structure cleaning dropped as people.
+    The same two blobs with as many returns as the walls are a person and leave."""
+    spec = GridSpec(0.05, 0.0, 0.0, 80, 60)
+    occ = np.zeros(spec.shape, bool)
+    occ[5, 2:78] = occ[55, 2:78] = True  # walls, seen well
+    _two_legs(occ, 30, 20)
+    _two_legs(occ, 30, 50)
+    lay = _unlabelled_layers(spec, occ, 100)
+    hits = lay.hits.copy()
+    hits[28:35, 18:31] = np.where(occ[28:35, 18:31], 4, 0)
+    from dataclasses import replace
+
+    mob = lay.mobility.copy()
+    mob[0] = hits
+    cm = clean(replace(lay, hits=hits, mobility=mob), CleaningConfig(), NAMES)
+    assert cm.occupied[28:35, 18:31].sum() == occ[28:35, 18:31].sum(), "the sparse blobs were dropped"
+    assert cm.occupied[28:35, 48:61].sum() == 0, "the well-seen legs stayed"
+
+
 def test_a_person_standing_feet_together_where_no_camera_looked_leaves():
     """Two legs touching make one blob no longer than one leg may be wide, with a waist between the legs,
     seen from all around: a person, dropped."""

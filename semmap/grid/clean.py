@@ -27,7 +27,8 @@ The camera sees ~56° ahead while the LiDAR sees 270°, so most returns carry no
    People no camera saw are found by their legs: two isolated blobs a leg wide
    (``person_leg_width``), ``person_leg_spacing`` apart, or one such blob two legs long (or, feet
    together, one leg wide) with a waist between the legs, not lying on one circle (a pot); walls
-   and large furniture may be near, other small blobs (a chair's other legs) may not. Unlabelled
+   and large furniture may be near, other small blobs (a chair's other legs) may not; blobs seen by a
+   small share of the returns the map's obstacles gathered are smears, not judged. Unlabelled
    cells off the walls that scans saw free ``transient_ratio`` times as often as they hit them
    are someone who paused there, kept by the log-odds only because their hits came last.
 5. **Furniture.** Unlabelled straight runs that meet a semi-static cell and are no longer than
@@ -341,9 +342,10 @@ def _best_semi_class(layers: GridLayers, names: Sequence[str]) -> NDArray[np.int
     return best
 
 
-#: a blob near a person's legs that holds at most this share of the smaller leg's cells, and is no wider
-#: than a leg may be narrow, is a thin furniture leg beside them, not a sign they are furniture
-_LEG_NEIGHBOUR_SHARE = 0.4
+#: a blob near a person's legs that holds at most this share of the smaller leg's cells, and spans no more
+#: than a leg must (``_LEG_MIN_EXTENT``), is a furniture leg beside them, not a sign they are furniture: a
+#: table's leg that beams smeared over five cells and 15 cm beside legs of eleven (random:327:b)
+_LEG_NEIGHBOUR_SHARE = 0.5
 #: ... when both legs are blobs too large to be a furniture leg (2-8 cm across): this many m² and this wide
 _LEG_MIN_AREA = 0.0125
 _LEG_MIN_EXTENT = 0.15
@@ -367,7 +369,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     LiDAR height the camera sees under the bed's edge, painted as the bed's in most frames and as a
     person's in the rest.
     Walls (``structure``) and anything longer than ``structure_min_size`` may be near: people stand by
-    walls, beds and counters.
+    walls, beds and counters. Only blobs the LiDAR saw well are judged: their cells gathered at least
+    ``person_leg_min_density`` of the returns per cell of the map's obstacles (the median); a blob seen
+    by a few returns, from afar or in a few scans, is a smear whose outline says nothing.
     """
     n, lab, stats, cent = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:  # (one blob may be a person: two legs close together)
@@ -427,14 +431,20 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if (not thin_near or leg_area * res * res < _LEG_MIN_AREA - 1e-9
                 or w[own].min() < _LEG_MIN_EXTENT - 1e-9):
             return False
-        small = (area[others] <= _LEG_NEIGHBOUR_SHARE * leg_area) & (w[others] <= lo)
+        small = (area[others] <= _LEG_NEIGHBOUR_SHARE * leg_area) & (w[others] <= _LEG_MIN_EXTENT + 1e-9)
         return bool(small.all())
 
     person = np.zeros(n, bool)
     # two legs, two blobs
     # (a blob the furniture labels veto may still pair when the two, summed, were seen as a person's)
     may_pair = ~pair_veto if seen_dyn is None else np.ones(n, bool)
-    ids = np.flatnonzero((w >= lo) & (w <= hi) & may_pair)
+    # a blob's shape says something only where the LiDAR saw it well: a blob whose cells gathered a small share
+    # of the returns a map's obstacle cells typically gather was glimpsed (from afar, in a few scans), its
+    # outline a smear of a few returns (a far wall's, a table leg's seen across a room), no pair of legs
+    typical = float(np.median(hits[occ])) if occ.any() else 0.0
+    dense = np.bincount(lab.reshape(-1), hits.reshape(-1).astype(np.float64), n) >= (
+        cfg.person_leg_min_density * typical * area)
+    ids = np.flatnonzero((w >= lo) & (w <= hi) & may_pair & dense)
     if ids.size >= 2:
         d = np.hypot(xy[ids, None, 0] - xy[None, ids, 0], xy[ids, None, 1] - xy[None, ids, 1])
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
@@ -446,8 +456,10 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
                 person[ids[i]] = person[ids[j]] = True
     # two legs close together merge into one blob: a leg wide across, two legs long, with a waist
     # between them when seen from all around. A blob no longer than one leg is wide is two legs only
-    # when it has that waist (a post or a bin that size is round)
-    for b in np.flatnonzero((w >= lo) & (w <= s_hi + hi) & ~veto & ~person):
+    # when it has that waist (a post or a bin that size is round). Touching legs are no longer than two
+    # legs are wide (legs further apart are two blobs): a wall's end 65 cm long and two cells thick, with
+    # stray returns beside it, is no person (a real Hokuyo tour, until stop 53)
+    for b in np.flatnonzero((w >= lo) & (w <= 2 * hi) & ~veto & ~person & dense):
         rows, cols = np.nonzero(lab == b)
         pts = np.asarray(np.column_stack([cols, rows]) * res, np.float64)
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))

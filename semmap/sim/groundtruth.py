@@ -144,13 +144,14 @@ def true_beam_end_points(tour: str | Path, exclude_dynamic: bool = True) -> NDAr
     from ..geometry import se2_compose, se3_from_xyz_rpy, se3_to_se2
     from ..io.tum import read_tum
     from ..io.yamlio import read_yaml
-    from .sensors import LidarSim
+    from .sensors import LidarSim, mount_turn
 
     tour = Path(tour)
     gt = tour / "ground_truth"
     beams = np.load(gt / "beams.npz")
     cfg = load_model(SimConfig, read_yaml(tour / "config.yaml"), str(tour / "config.yaml"))
     mount = se3_to_se2(se3_from_xyz_rpy(cfg.lidar.mount.xyz, cfg.lidar.mount.rpy))
+    turn = mount_turn(cfg.lidar.mount.rpy)  # an upside-down LiDAR's beams turn the other way
     offsets = beams["time_offset_s"] if "time_offset_s" in beams.files else LidarSim(cfg.lidar).beam_dt
     t_ref, p_ref = read_tum(gt / "trajectory.tum")
     tr = (t_ref - t_ref[0]) * 1e-9
@@ -165,7 +166,7 @@ def true_beam_end_points(tour: str | Path, exclude_dynamic: bool = True) -> NDAr
         poses = np.column_stack([np.interp(t, tr, p_ref[:, 0]), np.interp(t, tr, p_ref[:, 1]),
                                  np.interp(t, tr, yaw)])
         lidar = se2_compose(poses, mount)
-        local = np.column_stack([r[k, ok] * np.cos(a[ok]), r[k, ok] * np.sin(a[ok])])
+        local = np.column_stack([r[k, ok] * np.cos(a[ok]), turn * r[k, ok] * np.sin(a[ok])])
         c, s = np.cos(lidar[:, 2]), np.sin(lidar[:, 2])
         out.append(np.column_stack([lidar[:, 0] + c * local[:, 0] - s * local[:, 1],
                                     lidar[:, 1] + s * local[:, 0] + c * local[:, 1]]))

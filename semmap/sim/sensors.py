@@ -19,13 +19,20 @@ from ..config import SimCameraConfig, SimLidarConfig
 from ..geometry import se2_compose, se3_from_xyz_rpy
 from .raycast import PartSet, first_hit, part_intervals
 
-__all__ = ["CameraImage", "CameraSim", "LidarSim", "LidarSweep", "mount_se2"]
+__all__ = ["CameraImage", "CameraSim", "LidarSim", "LidarSweep", "mount_se2", "mount_turn"]
 
 
 def mount_se2(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> NDArray[np.float64]:
     """The floor pose (x, y, yaw) of a sensor mount given as ``T_base_sensor``."""
     t = se3_from_xyz_rpy(xyz, rpy)
     return np.array([t[0, 3], t[1, 3], math.atan2(t[1, 0], t[0, 0])])
+
+
+def mount_turn(rpy: tuple[float, float, float]) -> float:
+    """+1 for a LiDAR mounted upright, -1 for one mounted upside down (rolled half a turn, as under a
+    bumper): its beam at angle a in its own frame points at yaw - a in the base frame, not yaw + a."""
+    t = se3_from_xyz_rpy((0.0, 0.0, 0.0), rpy)
+    return 1.0 if t[2, 2] >= 0 else -1.0
 
 
 @dataclass(frozen=True)
@@ -48,6 +55,8 @@ class LidarSim:
         self.angle_increment = math.radians(cfg.fov_deg) / (n - 1)
         self.angles = self.angle_min + self.angle_increment * np.arange(n)
         self.mount = mount_se2(cfg.mount.xyz, cfg.mount.rpy)
+        #: each beam's angle from the mount's heading in the base frame (mirrored when upside down)
+        self.base_angles = mount_turn(cfg.mount.rpy) * self.angles
         self.height = float(cfg.mount.xyz[2])
         # a rotating scanner fires all beams of a full turn within one period
         self.time_increment = (1.0 / cfg.rate_hz) / (2 * math.pi / self.angle_increment) if cfg.sweep else 0.0
@@ -58,7 +67,7 @@ class LidarSim:
         lidar = se2_compose(np.atleast_2d(base_poses), self.mount)
         if lidar.shape[0] == 1:
             lidar = np.repeat(lidar, self.angles.size, axis=0)
-        heading = lidar[:, 2] + self.angles
+        heading = lidar[:, 2] + self.base_angles
         dirs = np.column_stack([np.cos(heading), np.sin(heading)])
         origin = lidar[:, :2]
         centre = origin[origin.shape[0] // 2]

@@ -461,7 +461,7 @@ class _PaintedHits:
         if not ok.any():
             return
         mount = se2_compose(poses[ok], self.lidar.mount)
-        head = mount[:, 2] + self.lidar.angles[ok]
+        head = mount[:, 2] + self.lidar.base_angles[ok]
         ends = mount[:, :2] + ranges[ok, None] * np.column_stack([np.cos(head), np.sin(head)])
         item = (ends, rows[ok])
         if k in self.images:

@@ -89,6 +89,17 @@ def _people(s: dict) -> str:
     return " / ".join(pct(s["maps"][side]["standing_left"]) for side in ("a", "b"))
 
 
+def _within(moves: list[dict], key: str, limit: float = 0.05) -> int:
+    """Moves found whose displacement error (``key``) is within ``limit`` m."""
+    return sum(bool(m["matched"]) and m.get(key) is not None and m[key] <= limit for m in moves)
+
+
+def _kept(s: dict, side: str) -> bool:
+    """Whether a pair's map (``a`` or ``b``) keeps more than 2 % of the cells a person stood on."""
+    v = s["maps"][side]["standing_left"]
+    return v == v and v > 0.02
+
+
 REAL_PAIRS = (("2018_may9_editted_before1", "2018_may9_editted_after1"), ("2019_jan17_expt08", "2019_jan17_expt09"))
 
 
@@ -204,9 +215,9 @@ def main() -> int:
             print(f"{pair}:", flush=True)
             results.append(score_pair(pair, args.work))
         print("\n| pair | alignment error (cm, °) | F1 added+removed (P / R) | moved objects matched | "
-              "worst displacement error (cm) | false changes | changes found | diff time (s) | "
-              "standing people left in A / B's map |")
-        print("|---|---|---|---|---|---|---|---|---|")
+              "within 5 cm (identical objects' places traded) | worst displacement error (cm) | false changes | "
+              "changes found | diff time (s) | standing people left in A / B's map |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
         for s in results:
             moves = [m for m in s["moves"] if m["seen"]]  # moves the two sessions could see
             matched = sum(m["matched"] for m in moves)
@@ -215,9 +226,17 @@ def main() -> int:
             errs = [m["displacement_error_m"] for m in moves if m["displacement_error_m"] is not None]
             worst = f"{max(errs) * 100:.1f}" if errs else "-"
             counts = ", ".join(f"{n} {k}" for k, n in s["counts"].items() if n)
+            near, near_any = _within(moves, "displacement_error_m"), _within(moves, "displacement_error_any_m")
             print(f"| {s['pair']} | {s['alignment_error_m'] * 100:.1f}, {s['alignment_error_deg']:.2f} | "
-                  f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched_txt} | {worst} | "
-                  f"{len(s['false_changes'])} | {counts} | {s['seconds']:.2f} | {_people(s)} |")
+                  f"{s['f1']:.3f} ({s['precision']:.3f} / {s['recall']:.3f}) | {matched_txt} | {near} ({near_any}) | "
+                  f"{worst} | {len(s['false_changes'])} | {counts} | {s['seconds']:.2f} | {_people(s)} |")
+        seen = [m for s in results for m in s["moves"] if m["seen"]]
+        print(f"\nAll {len(results)} pairs: F1 >= 0.95 on {sum(s['f1'] >= 0.95 for s in results)}; "
+              f"{sum(m['matched'] for m in seen)} of {len(seen)} moves found, {_within(seen, 'displacement_error_m')} "
+              f"within 5 cm ({_within(seen, 'displacement_error_any_m')} counting identical objects that traded "
+              f"places); {sum(len(s['false_changes']) for s in results)} false changes; "
+              f"{sum(_kept(s, side) for s in results for side in 'ab')} maps keep more than 2 % of a standing "
+              f"person")
         for s in results:
             for f in s["false_changes"]:
                 print(f"  false change in {s['pair']}: {f}")

@@ -626,6 +626,12 @@ class EkfConfig(_Model):
                                                                    "when its Hessian's weakest direction of "
                                                                    "translation has less than this share of the "
                                                                    "strongest's information")
+    first_view: tuple[float, float] = Field((1.0, 0.25), description="until the robot has driven this far (m), "
+                                                                      "KISS-ICP's local map holds the beam pattern "
+                                                                      "of one place, which holds a match to where "
+                                                                      "the robot stood: a match is degenerate under "
+                                                                      "this share instead (a tour that starts in a "
+                                                                      "corridor; (0, 0): off)")
     adapt_window: int = Field(15, ge=0, le=10000, description="the odometry noise is scaled up to what its "
                                                               "disagreement with ICP over the last this many "
                                                               "stretches of adapt_baseline shows (their median; "

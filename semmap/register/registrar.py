@@ -18,7 +18,8 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
     a noise scaled to the odometry's disagreement with ICP over recent stretches
     (``ekf.adapt_window``); ICP starts from that prediction; its result is a pose
     measurement (covariance: :meth:`Registrar._icp_covariance`; a degenerate match
-    leaves the direction it cannot see to odometry), gated by its Mahalanobis distance
+    leaves the direction it cannot see to odometry, and over the first metre driven,
+    ``ekf.first_view``, so does a weak one), gated by its Mahalanobis distance
     (chi-square, ``ekf.gate_chi2``). With ``ekf.fit_margin``
     below 1, a result beyond the gate is still taken (the filter restarts from it)
     when the scan lies on the local map better at ICP's pose than at the prediction:
@@ -169,6 +170,7 @@ class Registrar:
             "points_dynamic_excluded": 0,  # hit points dropped because painted dynamic
         }
         self._rejected_run = 0  # ICP results gated out in a row
+        self._driven = 0.0  # m driven since the first scan
         # the odometry noise's scale (std; x, y and yaw), learnt from its disagreement with ICP
         window = cfg.ekf.adapt_window
         self._noise_scale = np.ones(3)
@@ -240,6 +242,7 @@ class Registrar:
                 self.loop_points = prep.scan.map_points[:, :2]
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
+            self._driven += float(np.hypot(self._velocity[0], self._velocity[1]))
         self._pose = pose
         self._last_odom = odom
         self._last_stamp = scan.stamp_ns
@@ -360,7 +363,11 @@ class Registrar:
         floor = np.diag([e.icp_xy_std ** 2, e.icp_xy_std ** 2, e.icp_yaw_std ** 2])
         H = np.asarray(getattr(prepared, "information", np.zeros((3, 3))), np.float64)
         lam, vec = np.linalg.eigh(H[:2, :2])
-        degenerate = bool(lam[1] <= 0 or lam[0] < e.degenerate_ratio * lam[1])
+        # until the robot has moved, the local map is one view, whose beam pattern holds a weak match to where
+        # the robot stood (stop 53: a tour starting in a corridor): the wheels keep a weak direction then
+        first_m, first_ratio = e.first_view
+        ratio = e.degenerate_ratio if self._driven >= first_m else max(e.degenerate_ratio, first_ratio)
+        degenerate = bool(lam[1] <= 0 or lam[0] < ratio * lam[1])
         c, s = np.cos(pose[2]), np.sin(pose[2])
         G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         if e.icp_point_std <= 0:

@@ -652,6 +652,13 @@ class EkfConfig(_Model):
                                                           "distance); 1: never (gate on odometry alone); 0 for "
                                                           "real wheel odometry that drifts")
 
+    @field_validator("first_view")
+    @classmethod
+    def _first_view_range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not (0.0 <= v[0] <= 1000.0 and 0.0 <= v[1] <= 1.0):
+            raise ValueError("must be [metres driven (0-1000), share of information (0-1)]")
+        return v
+
 
 class LoopClosureConfig(_Model):
     """Loop closure (:mod:`semmap.register.loops`): keyframes, place recognition, ICP-verified loops and a

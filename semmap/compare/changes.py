@@ -102,6 +102,8 @@ class ChangeSettings:
     #: ... or four such obstacles at the corners of a rectangle whose sides are ``leg_rect_m`` long at
     #: most (a dining table or a bed, whose legs stand further apart than ``leg_span_m``)
     leg_rect_m: float = 3.0
+    #: an object whose cells span at most this (m) is a pole at LiDAR height (a screen's stand, a lamp)
+    pole_m: float = 0.2
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
 
@@ -832,6 +834,16 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                 if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
                     continue
             best, best_q, best_cells, best_hidden = ks, q, cells, by_hidden
+        if best is None and _pole(oxy, st):
+            # a pole (a screen's stand, a lamp: one leg at LiDAR height) has no shape to fit: its other end
+            # is the one pole-sized piece near it (the nearest, by half again as near as any other)
+            o_mid = oxy.mean(axis=0)
+            near = sorted((float(np.linalg.norm(_cells_xy(p, spec).mean(axis=0) - o_mid)), k)
+                          for k, p in enumerate(pieces) if k not in used and p.shape[0] >= 2
+                          and _pole(_cells_xy(p, spec), st))
+            near = [d for d in near if d[0] <= st.max_move_m]
+            if near and (len(near) == 1 or near[1][0] >= 1.5 * near[0][0]):
+                best, best_cells = (near[0][1],), pieces[near[0][1]]
         if best is None or best_cells is None:
             continue
         used.update(best)
@@ -840,6 +852,11 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         if best_hidden:
             through_hidden.add(id(twin))
     return out, through_hidden
+
+
+def _pole(xy: NDArray[np.float64], st: ChangeSettings) -> bool:
+    """Whether cells (centres, m) are one pole at LiDAR height: no longer than ``pole_m`` across."""
+    return bool(xy.shape[0] >= 1 and float(np.ptp(xy, axis=0).max()) <= st.pole_m)
 
 
 def _piece_groups(pieces: list[NDArray[np.intp]], used: set[int], oxy: NDArray[np.float64], length: float,

@@ -1071,7 +1071,7 @@ def test_a_screen_on_a_stand_labelled_at_one_end_only_moved_is_one_move(labelled
     labelled it in one session only, its other end is the one pole-sized piece near it (5 of the 14
     moves the 48 new development pairs of stop 53 missed were screens; 3 of them such)."""
     here, there = ("tv", (6.0, 3.0), (0.04, 0.04), 0.0), ("tv", (7.1, 4.2), (0.04, 0.04), 0.0)
-    r, mv = _one_move_one_end_labelled(here, there, labelled_in)
+    _, mv = _one_move_one_end_labelled(here, there, labelled_in)
     assert mv.displacement_m == pytest.approx(math.hypot(1.1, 1.2), abs=0.05)
     assert np.linalg.norm(_world(mv.to_xy) - (7.1, 4.2)) < 0.05
 

@@ -283,6 +283,25 @@ def test_a_face_one_session_saw_only_edge_on_is_no_change_and_a_new_thin_wall_ac
     assert np.all(np.abs(added[:, 0] - 7.0) < 0.1)
 
 
+def test_a_door_closed_into_a_room_the_first_session_never_looked_into_is_added():
+    # a wall across the room at y = 5 with a 0.9 m doorway; A's robot passed the doorway along the
+    # wall, its rays grazing the opening, and never looked into the room beyond (random:508). B found
+    # the door closed. What A never observed lies all along the door's far side, as inside a pillar A
+    # saw edge-on, but A's wall continues the door's line beyond both its ends: a door, added
+    a, b = Room(), Room()
+    for room in (a, b):
+        room.walls += [(0.0, 5.0, 4.0, 5.0), (4.9, 5.0, 10.0, 5.0)]
+        room.unseen.append((0.0, 5.03, 10.0, 8.0))
+    b.walls.append((4.0, 5.0, 4.9, 5.0))
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 1, r.counts()
+    assert r.left_out["hidden_faces"] == 0
+    added = _mask_world(r, 1)
+    assert np.all(np.abs(added[:, 1] - 5.0) < 0.08)
+    # the door less the tolerance at each jamb (within 10 cm of A's wall, a cell is the wall)
+    assert np.ptp(added[:, 0]) >= 0.6 and added.shape[0] >= 0.6 / RES, added.shape
+
+
 def test_a_moved_chair_whose_camera_labelled_two_of_its_legs_is_one_move():
     # A saw a chair the camera never labelled (four static legs). It moved 1.56 m; B's camera labelled
     # two of its legs, the LiDAR alone saw the other two (static, in no object). The chair in B's list
@@ -898,6 +917,43 @@ def test_a_chair_the_build_grouped_with_a_table_that_moved_away_from_it_is_a_mov
     assert mv.class_name == "chair"
     assert mv.displacement_m == pytest.approx(math.hypot(0.08, 1.5), abs=0.05)
     assert np.linalg.norm(_world(mv.to_xy) - (4.7, 4.5)) < 0.05
+
+
+def test_a_table_that_went_from_the_end_of_one_that_stayed_is_gone_though_its_build_grouped_them():
+    # Two dining tables end to end: a long one that stayed, and beyond its east end, 0.36 m off, one
+    # of four legs that went (random:502). A's build grouped the long table's two east legs with the
+    # short table's four; B's lists the long table's east legs alone. Those two legs, a third of A's
+    # object, lie on B's: "B's table seen less fully" would hide the four legs B saw floor at.
+    from dataclasses import replace
+
+    a, b = Room(), Room()
+    long_t, short_t = ("dining table", (3.0, 3.0), (2.0, 0.8), 0.0), ("dining table", (4.9, 3.0), (1.2, 0.8), 0.0)
+    a.objects += [long_t, short_t]
+    a.listed_legs[0] = (0, 3)  # A's entry for the long table: its west legs
+    b.objects.append(long_t)
+    b.listed_legs[0] = (1, 2)  # B's: its east legs
+    sa, sb = a.session(T_A, "A"), b.session(T_B, "B")
+    # A's second entry holds the short table's legs and the long one's east legs (world x 3.97)
+    rows, cols = np.nonzero(sa.semi_static)
+    world = se2_apply(T_A, np.stack([sa.spec.origin_x + (cols + 0.5) * RES, sa.spec.origin_y + (rows + 0.5) * RES],
+                                    axis=1))
+    index = sa.object_index.copy()
+    index[rows[world[:, 0] > 3.5], cols[world[:, 0] > 3.5]] = 1
+    grouped = replace(sa.objects[1], centroid=tuple(se2_apply(se2_inverse(T_A), np.array([[4.72, 3.0]]))[0]),
+                      size=(1.56, 0.8))
+    sa = replace(sa, object_index=index, objects=(sa.objects[0], grouped))
+    t_a_b = se2_apply(se2_inverse(T_A), T_B[None, :2])[0]
+    r = diff_sessions(sa, sb, alignment=Alignment(np.array([t_a_b[0], t_a_b[1], T_B[2] - T_A[2]])))
+    counts = r.counts()
+    assert counts["object_disappeared"] == 1 and counts["object_moved"] == counts["object_appeared"] == 0, counts
+    assert counts["static_added"] == counts["static_removed"] == 0, counts
+    gone = r.of_type("object_disappeared")[0]
+    assert gone.class_name == "dining table"
+    assert np.linalg.norm(_world(gone.centroid) - (4.9, 3.0)) < 0.1
+    removed = _mask_world(r, 2)
+    for leg in Room().legs((4.9, 3.0), (1.2, 0.8), 0.0):  # each of the four legs that went is in the mask
+        assert np.min(np.linalg.norm(removed - leg, axis=1)) < 0.05
+    assert np.all(removed[:, 0] > 4.2)  # and nothing of the long table that stayed
 
 
 def test_a_couch_seen_as_its_labelled_side_and_an_unlabelled_front_is_measured_by_both():

@@ -106,6 +106,9 @@ class ChangeSettings:
     pole_m: float = 0.2
     #: explored or no-longer-covered floor smaller than this (m²) is not reported
     min_explored_m2: float = 1.0
+    #: a straight piece at least this long whose line the other session's walls continue beyond both
+    #: ends is a door closed in a doorway (or one opened), never a face the other session saw edge-on
+    door_min_m: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -320,14 +323,22 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
 
 
 def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
-                 too_long: Callable[[_Obj], bool] | None = None) -> list[_Obj]:
+                 too_long: Callable[[_Obj], bool] | None = None, leg_cells: int = 0,
+                 min_legs: int = 0) -> tuple[list[_Obj], list[tuple[NDArray[np.intp], str]]]:
     """``changed`` less the objects that are an object of their class in ``unchanged_other`` (the
     other session's objects that did not change) seen more fully: most of that object's cells, and a
     third of this one's, lie within a cell and a half of each other (two legs of a chair in A, four in
     B). Not when they share a cell or two: a build may list a moved table with a leg of the unchanged
     table beside it, or two beds as one. Nor when it is ``too_long`` for its class: more than one
-    object of its class, grouped by its build (a new couch put beside one that stayed)."""
-    out = []
+    object of its class, grouped by its build (a new couch put beside one that stayed).
+
+    Also the cells of such an object beyond the other one when they are ``min_legs`` or more legs of
+    their own (groups of at most ``leg_cells`` cells): not legs the other session lost, but a second
+    object its build grouped with the first (a table of four legs that went from the end of one that
+    stayed; a chair tucked at a table's end that moved away). They are the caller's to pair with the
+    other end of a move, or to report gone (or new) on their own."""
+    out: list[_Obj] = []
+    rests: list[tuple[NDArray[np.intp], str]] = []
     for o in changed:
         xy = o.cells.astype(np.float64)
         same = False
@@ -342,10 +353,21 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
             d_u = cKDTree(xy).query(uxy)[0]
             if float(np.mean(d_o <= 1.5)) >= 1.0 / 3.0 and float(np.mean(d_u <= 1.5)) >= 0.5:
                 same = True
+                beyond = o.cells[d_o > 1.5]
+                if min_legs and _legs_of_its_own(beyond.astype(np.float64), leg_cells) >= min_legs:
+                    rests.append((beyond, o.src.class_name))
                 break
         if not same:
             out.append(o)
-    return out
+    return out, rests
+
+
+def _legs_of_its_own(cells: NDArray[np.float64], leg_cells: int) -> int:
+    """How many legs ``cells`` (row, col) hold: 8-connected groups of at most ``leg_cells`` cells."""
+    if not cells.shape[0]:
+        return 0
+    sizes = np.bincount(_clusters(cells, 1.5))
+    return int(np.count_nonzero(sizes <= leg_cells))
 
 
 def _clusters(xy: NDArray[np.float64], link: float) -> NDArray[np.intp]:
@@ -1232,6 +1254,33 @@ def _thin(piece: NDArray[np.bool_]) -> bool:
     return not ndimage.binary_erosion(piece, np.ones((3, 3), bool)).any()
 
 
+def _in_doorway(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | None], k: int,
+                walls: NDArray[np.bool_], min_cells: float) -> bool:
+    """Whether piece ``k`` is straight, at least ``min_cells`` long, and ``walls`` continue its line
+    beyond both its ends (three of the five cells past each end have a wall within a cell): a door
+    across a doorway in the other session's wall."""
+    sl = slices[k - 1]
+    if sl is None:
+        return False
+    rc = np.argwhere(labels[sl] == k).astype(np.float64) + (sl[0].start, sl[1].start)
+    centre = rc.mean(axis=0)
+    _, sv, vt = np.linalg.svd(rc - centre, full_matrices=False)
+    axis = vt[0]
+    along = (rc - centre) @ axis
+    if float(np.ptp(along)) + 1.0 < min_cells or (sv.size > 1 and sv[1] / max(sv[0], 1e-9) > 0.2):
+        return False
+    grown = _dilate(walls[max(0, sl[0].start - 8):sl[0].stop + 8, max(0, sl[1].start - 8):sl[1].stop + 8], 1.5)
+    off = np.array([max(0, sl[0].start - 8), max(0, sl[1].start - 8)], np.float64)
+    for end in (float(along.min()), float(along.max())):
+        sign = 1.0 if end > 0 else -1.0
+        pts = centre + np.outer(end + sign * np.arange(1.0, 6.0), axis) - off
+        ij = np.round(pts).astype(np.intp)
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < grown.shape[0]) & (ij[:, 1] >= 0) & (ij[:, 1] < grown.shape[1])
+        if int(grown[ij[ok, 0], ij[ok, 1]].sum()) < 3:
+            return False
+    return True
+
+
 def _strips_along(labels: NDArray[np.int32], slices: list[tuple[slice, slice] | None], ids: list[int],
                   near: NDArray[np.bool_], band_cells: float, max_parts: int | None = None) -> set[int]:
     """The pieces (label ids) at most two cells thick lying, for at least 80 % of their cells, within
@@ -1350,9 +1399,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             """Longer than one object of its class can be: more than one, grouped by its build."""
             return bool(o.src.class_name) and max(o.src.size) > 1.1 * float(sizes.size_of(o.src.class_name)) + res
 
-        gone = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long)
+        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
+        gone, rests_a = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long, leg_cells,
+                                     st.min_fit_legs)
         gone_ids = {id(o) for o in gone}
-        new = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], too_long)
+        new, rests_b = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], too_long, leg_cells,
+                                    st.min_fit_legs)
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True
@@ -1399,7 +1451,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # that its build put in another object that stayed: two legs a camera labelled and two the LiDAR
         # alone saw, or two its build gave the bed beside it, are one chair, whose four legs fit the
         # other end's)
-        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
         legs_a, legs_b = _small_blobs(lo.occ_a, leg_cells), _small_blobs(lo.occ_b, leg_cells)
         own_legs = {True: ((removed_raw & ~semi_a & ~lo.dyn_a) | rem_a) & legs_a,
                     False: ((added_raw & ~semi_b & ~lo.dyn_b) | rem_b) & legs_b}
@@ -1438,6 +1489,18 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         free_b_pieces = [p for p in _pieces(added_raw & off_semi_b, spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
         moved += _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
+        # the second object a build grouped with one that stayed (see _seen_better), when no move took
+        # its cells: gone (or new) on its own, where its cells changed
+        for pair in moved:
+            for o in pair:
+                taken[o.cells[:, 0], o.cells[:, 1]] = True
+        for rests, changed_cells, objs_side, idx in ((rests_a, gone_cells, gone, only_a),
+                                                     (rests_b, new_cells, new, only_b)):
+            for rest, class_name in rests:
+                r, c = rest[:, 0], rest[:, 1]
+                if float(taken[r, c].mean()) < 0.5 and float(changed_cells[r, c].mean()) >= 0.5:
+                    objs_side.append(_piece_object(rest, class_name, spec))
+                    idx.append(len(objs_side) - 1)
         # an object of A carried by a candidate motion is contradicted on floor B saw free with no
         # obstacle of B within a cell and a half, and beyond half a metre of anything B saw (behind
         # its walls, out of the building); it is explained on furniture either session saw: cells
@@ -1590,6 +1653,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         faces = _strips_along(labels, slices, ids, other_occ & ~other_semi, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
         hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0, 2)
+        # (beyond a door closed in a doorway lies the room the other session never looked into)
+        hidden = {k for k in hidden if not _in_doorway(labels, slices, k, other_occ & ~other_semi,
+                                                       st.door_min_m / res)}
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]

@@ -1488,10 +1488,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                          if not taken[p[:, 0], p[:, 1]].any()]
         free_b_pieces = [p for p in _pieces(added_raw & off_semi_b, spec, group)
                          if not taken[p[:, 0], p[:, 1]].any()]
-        moved += _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
+        unlabelled = _unlabelled_moves(free_a_pieces, free_b_pieces, lo.dyn_a, lo.dyn_b, spec, st)
+        moved += unlabelled
         # the second object a build grouped with one that stayed (see _seen_better), when no move took
         # its cells: gone (or new) on its own, where its cells changed
-        for pair in moved:
+        for pair in unlabelled:
             for o in pair:
                 taken[o.cells[:, 0], o.cells[:, 1]] = True
         for rests, changed_cells, objs_side, idx in ((rests_a, gone_cells, gone, only_a),
@@ -1650,12 +1651,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         slices = ndimage.find_objects(labels)
         # (a wall's far face runs along the other session's wall, not along its furniture: a couch's
         # front 20 cm out from where the other session saw it is the couch pulled from the wall)
-        faces = _strips_along(labels, slices, ids, other_occ & ~other_semi, 2.0 * tol)
+        other_walls = other_occ & ~other_semi
+        faces = _strips_along(labels, slices, ids, other_walls, 2.0 * tol)
         left_out["wall_faces"] += len(faces)
         hidden = _strips_along(labels, slices, [k for k in ids if k not in faces], ~(other_occ | other_free), 2.0, 2)
         # (beyond a door closed in a doorway lies the room the other session never looked into)
-        hidden = {k for k in hidden if not _in_doorway(labels, slices, k, other_occ & ~other_semi,
-                                                       st.door_min_m / res)}
+        hidden = {k for k in hidden if not _in_doorway(labels, slices, k, other_walls, st.door_min_m / res)}
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
         changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]

@@ -26,7 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -109,6 +109,9 @@ class ChangeSettings:
     #: a straight piece at least this long whose line the other session's walls continue beyond both
     #: ends is a door closed in a doorway (or one opened), never a face the other session saw edge-on
     door_min_m: float = 0.5
+    #: the inside of an obstacle that changed (which its own session cannot see), enclosed by its
+    #: changed faces and the other session's wall behind it, is a change up to this size (m²)
+    max_fill_m2: float = 2.5
 
 
 @dataclass(frozen=True)
@@ -1630,11 +1633,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
-    for kind, cells, voided, value, own_occ, other_occ, other_free, other_semi, own_faint, other_near in (
-            ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.occ_a, lo.free_a,
-             lo.semi_a, lo.faint_b, near_a),
-            ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.occ_b,
-             lo.free_b, lo.semi_b, lo.faint_a, near_b)):
+    for kind, cells, voided, value, own_occ, own_free, other_occ, other_free, other_semi, own_faint, other_near in (
+            ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.free_b, lo.occ_a,
+             lo.free_a, lo.semi_a, lo.faint_b, near_a),
+            ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.free_a,
+             lo.occ_b, lo.free_b, lo.semi_b, lo.faint_a, near_b)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
         # when three or more stand within a table's span of each other: furniture, not noise. Legs
@@ -1659,7 +1662,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         hidden = {k for k in hidden if not _in_doorway(labels, slices, k, other_walls, st.door_min_m / res)}
         left_out["hidden_faces"] += len(hidden)
         faces |= hidden
-        changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
         # a change reaches on, through its own obstacle cells the other session saw free, up to the
         # tolerance into the band by the other's obstacles: the end of a cabinet's face where it meets
         # the wall it stands against
@@ -1674,6 +1676,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             # cleared it), but it is one face
             shown = _grow_along(shown, own_faint & other_free & ~other_near & ~on_objects & ~people & (mask == 0), 10)
         mask[shown] = value
+        # a solid obstacle's inside, which its own session never saw, between the faces that changed and
+        # the other session's wall behind it: a cabinet against a wall changes on three faces, and its
+        # back, a cell from the other session's wall, is within the tolerance of that wall
+        inside = _enclosed(mask == value, other_occ, own_free, other_free, st.max_fill_m2 / (res * res))
+        if inside.any():
+            mask[inside] = value
+            found = _with_insides(found, ids, labels, inside, spec)
+        changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
 
     # floor only one session observed
     min_explored = max(1, int(math.ceil(st.min_explored_m2 / (res * res))))
@@ -1686,6 +1696,86 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     order = {t: i for i, t in enumerate(CHANGE_TYPES)}
     changes.sort(key=lambda c: (order[c.type], -c.area_m2))
     return changes, mask, left_out
+
+
+def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free: NDArray[np.bool_],
+              other_free: NDArray[np.bool_], max_cells: float) -> NDArray[np.bool_]:
+    """The inside of solid obstacles that changed: cells the changed cells enclose, alone or with the
+    other session's obstacles (grown by a cell: the gap a cabinet leaves to the wall), that the
+    obstacle's own session never saw free and the other saw free. Each inside is at most ``max_cells``,
+    its own session saw at most half of it free (not a room a new wall closes), and changed cells line
+    a third of its rim at least (a cabinet against a wall changes on three faces of four; not the
+    inside of a pillar the other session saw)."""
+    out = np.zeros(changed.shape, bool)
+    if not changed.any():
+        return out
+    rows, cols = np.nonzero(changed)
+    pad = 3
+    r0, r1 = max(0, rows.min() - pad), min(changed.shape[0], rows.max() + pad + 1)
+    c0, c1 = max(0, cols.min() - pad), min(changed.shape[1], cols.max() + pad + 1)
+    win = (slice(r0, r1), slice(c0, c1))
+    ch = changed[win]
+    # (the faces grown by a cell, so that a face with gaps of a cell or two still closes)
+    barrier = _dilate(ch, 1.0) | _dilate(other_occ[win], 1.0)
+    holes = ndimage.binary_fill_holes(barrier) & ~barrier
+    if not holes.any():
+        return out
+    labels, n = ndimage.label(holes)
+    slices = ndimage.find_objects(labels)
+    for k, sl in enumerate(slices, start=1):
+        if sl is None:
+            continue
+        grown = tuple(slice(max(0, s.start - 3), s.stop + 3) for s in sl)
+        # the inside, grown back by the cells the barrier took, up to the changed cells and the wall
+        hole = _grow_along(labels[grown] == k, ~ch[grown] & ~other_occ[win][grown], 2)
+        size = int(hole.sum())
+        if size > max_cells:
+            continue
+        rim = _dilate(hole, 1.5) & ~hole
+        if ch[grown][rim].mean() < 1.0 / 3.0:
+            continue
+        if own_free[win][grown][hole].mean() > 0.5:
+            continue  # its own session saw floor inside: not solid
+        fill = hole & other_free[win][grown]
+        sub = out[win][grown]
+        sub |= fill
+    return out
+
+
+def _with_insides(found: list[Change], ids: list[int], labels: NDArray[np.int32], inside: NDArray[np.bool_],
+                  spec: GridSpec) -> list[Change]:
+    """Each change grown by the insides its cells enclose (its area and centroid then cover the
+    obstacle's footprint): an inside belongs to the change whose cells line most of its rim."""
+    pos = {k: i for i, k in enumerate(ids)}
+    grown = {i: (0, 0.0, 0.0) for i in range(len(found))}
+    lab, n = ndimage.label(inside, structure=np.ones((3, 3), bool))
+    for j, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        win = tuple(slice(max(0, s.start - 2), s.stop + 2) for s in sl)
+        hole = lab[win] == j
+        rim = labels[win][_dilate(hole, 1.5) & ~hole]
+        rim = rim[rim > 0]
+        if not rim.size:
+            continue
+        k = int(np.bincount(rim).argmax())
+        if k not in pos:
+            continue
+        rr, cc = np.nonzero(hole)
+        m, sr, sc = grown[pos[k]]
+        grown[pos[k]] = (m + rr.size, sr + float((rr + win[0].start).sum()), sc + float((cc + win[1].start).sum()))
+    out = []
+    for i, c in enumerate(found):
+        m, sr, sc = grown[i]
+        if m:
+            x = spec.origin_x + (sc / m + 0.5) * spec.resolution
+            y = spec.origin_y + (sr / m + 0.5) * spec.resolution
+            w = c.cells + m
+            cx = (c.centroid[0] * c.cells + x * m) / w
+            cy = (c.centroid[1] * c.cells + y * m) / w
+            c = replace(c, centroid=(float(cx), float(cy)), area_m2=float(w * spec.resolution ** 2), cells=int(w))
+        out.append(c)
+    return out
 
 
 def _grow_along(cells: NDArray[np.bool_], allowed: NDArray[np.bool_], steps: int) -> NDArray[np.bool_]:

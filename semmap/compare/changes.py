@@ -1721,9 +1721,14 @@ def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free
     if not holes.any():
         return out
     labels, n = ndimage.label(holes)
+    # only insides of the size of an obstacle, next to changed cells (the rooms A's walls close are
+    # holes too, and many)
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    by_changes = np.zeros(n + 1, bool)
+    by_changes[np.unique(labels[_dilate(ch, 2.5)])] = True
     slices = ndimage.find_objects(labels)
     for k, sl in enumerate(slices, start=1):
-        if sl is None:
+        if sl is None or sizes[k] > max_cells or not by_changes[k]:
             continue
         grown = tuple(slice(max(0, s.start - 3), s.stop + 3) for s in sl)
         # the inside, grown back by the cells the barrier took, up to the changed cells and the wall
@@ -1747,8 +1752,8 @@ def _with_insides(found: list[Change], ids: list[int], labels: NDArray[np.int32]
     """Each change grown by the insides its cells enclose (its area and centroid then cover the
     obstacle's footprint): an inside belongs to the change whose cells line most of its rim."""
     pos = {k: i for i, k in enumerate(ids)}
-    grown = {i: (0, 0.0, 0.0) for i in range(len(found))}
-    lab, n = ndimage.label(inside, structure=np.ones((3, 3), bool))
+    grown = dict.fromkeys(range(len(found)), (0, 0.0, 0.0))
+    lab, _ = ndimage.label(inside, structure=np.ones((3, 3), bool))
     for j, sl in enumerate(ndimage.find_objects(lab), start=1):
         if sl is None:
             continue

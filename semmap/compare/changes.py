@@ -1051,7 +1051,8 @@ _UNANIMOUS_CELLS = 5
 def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArray[np.bool_],
                      other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
                      left_out: dict[str, int], key: str, by_wall: NDArray[np.bool_] | None = None,
-                     others: list[_Obj] | None = None) -> list[_Obj]:
+                     others: list[_Obj] | None = None,
+                     kept_legs: tuple[NDArray[np.bool_], NDArray[np.bool_], int, float] | None = None) -> list[_Obj]:
     """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). A cell with
     an obstacle of the other session within the tolerance (``still``) is there still; one beside
     people (``people``) with none is no evidence either way; nor, for an object with no object of its
@@ -1060,7 +1061,9 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
     the tolerance): a table's back legs against a wall, and the wall behind them its labels bled onto,
     are within the tolerance of the other session's wall whether the table is there or not, so its
     front legs decide (when they are three cells or more and a fifth of it). An object the other
-    session did not see enough of is left out (counted under ``key``), never called gone."""
+    session did not see enough of is left out (counted under ``key``), never called gone. Nor is one of
+    whose legs the other session kept two, and half (``kept_legs``: the other session's legs and small
+    obstacles grown by the tolerance, and the most cells a leg has; :func:`_legs_still`)."""
     out = []
     for o in objs:
         if o.cells.shape[0] == 0:
@@ -1084,9 +1087,29 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
             judged = clear & ~(by_wall[r, c] & still[r, c])
             if judged.sum() < max(3, 0.2 * r.size):
                 judged = clear
-        if float(changed[r, c][judged].mean()) >= 0.5:
+        if float(changed[r, c][judged].mean()) >= 0.5 and not (
+                kept_legs is not None and _legs_still(o, *kept_legs)):
             out.append(o)
     return out
+
+
+def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool_], leg_cells: int,
+                res: float) -> bool:
+    """Whether an object of three legs or more (and little else) has two of them, and half, with a leg (or a small
+    obstacle) of the other session on them, and the other session changed nothing within the object's
+    size of it: it stands there still, and the other map lost its other legs (thin legs that rays
+    grazing past cleared, or that beams ended on too seldom). A chair pushed back by its legs' spacing
+    puts two legs where two stood, and two new ones beside them."""
+    cells = o.cells
+    groups = _clusters(cells.astype(np.float64), 1.5)
+    sizes = np.bincount(groups)
+    legs = np.flatnonzero(sizes <= leg_cells)
+    if legs.size < 3 or sizes[legs].sum() < 0.8 * cells.shape[0]:
+        return False  # (furniture of legs alone: a couch's faces in pieces are no legs)
+    held = np.intersect1d(np.unique(groups[kept[cells[:, 0], cells[:, 1]]]), legs).size
+    if held < 2 or held < 0.5 * legs.size:
+        return False
+    return _cells_near(other_changed, cells, max(*o.src.size, 2 * res) / res).shape[0] < 2
 
 
 def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Obj]:
@@ -1242,14 +1265,15 @@ def _with_legs(o: _Obj, legs: NDArray[np.bool_], spec: GridSpec, size_of: Any) -
     return o if cells.shape[0] == o.cells.shape[0] else _Obj(o.src, o.centroid, o.yaw, o.footprint, cells)
 
 
-def _small_blobs(occ: NDArray[np.bool_], max_cells: int) -> NDArray[np.bool_]:
-    """Obstacles of at most ``max_cells`` cells (8-connected): legs of furniture, posts, not walls."""
-    lab, n = ndimage.label(occ, structure=np.ones((3, 3), bool))
+def _small_blobs(occ: NDArray[np.bool_], max_cells: int, join: bool = False) -> NDArray[np.bool_]:
+    """Obstacles of at most ``max_cells`` cells (8-connected): legs of furniture, posts, not walls. With
+    ``join``, cells a cell apart are one obstacle (a wall resampled into the other map's grid is dotted)."""
+    lab, n = ndimage.label(_dilate(occ, 1.0) if join else occ, structure=np.ones((3, 3), bool))
     if n == 0:
         return np.zeros_like(occ)
-    small = np.bincount(lab.ravel(), minlength=n + 1) <= max_cells
+    small = np.bincount(lab[occ], minlength=n + 1) <= max_cells
     small[0] = False
-    return np.asarray(small[lab], bool)
+    return np.asarray(small[lab], bool) & occ
 
 
 def _thin(piece: NDArray[np.bool_]) -> bool:
@@ -1391,10 +1415,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         wall_a, wall_b = _dilate(wall_a, tol), _dilate(wall_b, tol)
         # the cells each session changed with no obstacle of the other there still
         gone_cells, new_cells = removed & ~still_a, added & ~still_b
+        # (and legs the other session kept of it: its legs, or small obstacles, on the object's legs, never
+        # its walls: a couch pushed against a wall has its back legs by the wall the other session saw)
+        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
+        kept_a = _dilate(_small_blobs(obst_b, leg_cells, join=True) | semi_b, fine)
+        kept_b = _dilate(_small_blobs(obst_a, leg_cells, join=True) | semi_a, fine)
         gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,
-                                "objects_unobserved_in_b", wall_a, objs_b)
+                                "objects_unobserved_in_b", wall_a, objs_b, (kept_a, added, leg_cells, res))
         new = _changed_objects(objs_b, new_cells, still_b, obs_a, people_for_b, st, left_out,
-                               "objects_unobserved_in_a", wall_b, objs_a)
+                               "objects_unobserved_in_a", wall_b, objs_a, (kept_b, removed, leg_cells, res))
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}
@@ -1402,7 +1431,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             """Longer than one object of its class can be: more than one, grouped by its build."""
             return bool(o.src.class_name) and max(o.src.size) > 1.1 * float(sizes.size_of(o.src.class_name)) + res
 
-        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
         gone, rests_a = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long, leg_cells,
                                      st.min_fit_legs)
         gone_ids = {id(o) for o in gone}

@@ -513,7 +513,7 @@ def test_a_cabinet_against_a_wall_is_in_the_mask_with_its_inside_and_its_back_an
     assert abs(_world(change.centroid)[1] - 7.65) < 0.1, _world(change.centroid)
 
 
-def test_the_inside_of_what_changed_is_filled_only_where_nothing_was_seen_and_never_a_room():
+def test_the_inside_of_what_changed_is_filled_only_where_nothing_was_seen_and_never_a_room_or_clutter():
     # B's new partition closes off a room corner of 2 m x 1.5 m whose floor B saw free inside: only the
     # partition is new. A new box 2.2 m x 2.2 m no one saw inside is larger than any cabinet: it may be
     # a room B's robot did not enter, so its inside stays unknown
@@ -521,8 +521,17 @@ def test_the_inside_of_what_changed_is_filled_only_where_nothing_was_seen_and_ne
     b.walls += [(8.0, 8.0, 8.0, 6.5), (8.0, 6.5, 10.0, 6.5)]
     b.walls += [(2.0, 2.0, 4.2, 2.0), (4.2, 2.0, 4.2, 4.2), (4.2, 4.2, 2.0, 4.2), (2.0, 4.2, 2.0, 2.0)]
     b.unseen.append((2.01, 2.01, 4.19, 4.19))
+    # and clutter by the south wall: returns scattered 7.5 cm apart around a patch B did not see
+    # into (boxes, a trolley: the real Hokuyo tours have such), no solid obstacle's faces
+    for x in np.arange(6.0, 7.01, 0.075):
+        b.walls.append((x, 0.6, x + 0.01, 0.6))
+    for y in np.arange(0.1, 0.61, 0.075):
+        b.walls += [(6.0, y, 6.0, y + 0.01), (7.0, y, 7.0, y + 0.01)]
+    b.unseen.append((6.03, 0.03, 6.97, 0.57))
     r = _diff(a, b)
     added = _mask_world(r, 1)
+    clutter = added[(added[:, 0] > 6.1) & (added[:, 0] < 6.9) & (added[:, 1] > 0.1) & (added[:, 1] < 0.5)]
+    assert clutter.shape[0] == 0, clutter.shape
     corner = added[(added[:, 0] > 8.2) & (added[:, 1] > 6.7) & (added[:, 0] < 9.8) & (added[:, 1] < 7.8)]
     assert corner.shape[0] == 0, corner.shape
     box = added[(added[:, 0] > 2.2) & (added[:, 0] < 4.0) & (added[:, 1] > 2.2) & (added[:, 1] < 4.0)]

@@ -1726,14 +1726,21 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     return changes, mask, left_out
 
 
+#: the share of an enclosed inside's outline (off the other session's obstacles) that must be changed
+#: cells for the inside to be filled: 0.80-1.00 around the simulated cabinets and couches, 0.38-0.62
+#: around scattered clutter on the real Hokuyo tours
+_OUTLINE_SHARE = 0.75
+
+
 def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free: NDArray[np.bool_],
               other_free: NDArray[np.bool_], max_cells: float) -> NDArray[np.bool_]:
     """The inside of solid obstacles that changed: cells the changed cells enclose, alone or with the
     other session's obstacles (grown by a cell: the gap a cabinet leaves to the wall), that the
     obstacle's own session never saw free and the other saw free. Each inside is at most ``max_cells``,
-    its own session saw at most half of it free (not a room a new wall closes), and changed cells line
+    its own session saw at most half of it free (not a room a new wall closes), changed cells line
     a third of its rim at least (a cabinet against a wall changes on three faces of four; not the
-    inside of a pillar the other session saw)."""
+    inside of a pillar the other session saw), and ``_OUTLINE_SHARE`` of its rim where the other
+    session's obstacles do not close it (faces, not clutter)."""
     out = np.zeros(changed.shape, bool)
     if not changed.any():
         return out
@@ -1744,7 +1751,8 @@ def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free
     win = (slice(r0, r1), slice(c0, c1))
     ch = changed[win]
     # (the faces grown by a cell, so that a face with gaps of a cell or two still closes)
-    barrier = _dilate(ch, 1.0) | _dilate(other_occ[win], 1.0)
+    near_other = _dilate(other_occ[win], 1.0)
+    barrier = _dilate(ch, 1.0) | near_other
     holes = ndimage.binary_fill_holes(barrier) & ~barrier
     if not holes.any():
         return out
@@ -1759,13 +1767,22 @@ def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free
         if sl is None or sizes[k] > max_cells or not by_changes[k]:
             continue
         grown = tuple(slice(max(0, s.start - 3), s.stop + 3) for s in sl)
-        # the inside, grown back by the cells the barrier took, up to the changed cells and the wall
-        hole = _grow_along(labels[grown] == k, ~ch[grown] & ~other_occ[win][grown], 2)
+        # the inside, grown back by the cells the barrier took: a cell up to the changed cells, and two up
+        # to the other session's obstacles (not out through a gap in a dotted face)
+        free_of = ~ch[grown] & ~other_occ[win][grown]
+        hole = _grow_along(labels[grown] == k, free_of, 1)
+        hole = _grow_along(hole, free_of & near_other[grown], 1)
         size = int(hole.sum())
         if size > max_cells:
             continue
         rim = _dilate(hole, 1.5) & ~hole
         if ch[grown][rim].mean() < 1.0 / 3.0:
+            continue
+        # its outline, where the other session's obstacles do not close it, is of changed cells with a
+        # gap here and there (a face resampled into the other grid is dotted): a solid obstacle's faces,
+        # not returns of clutter scattered about a room, whose gaps the barrier's growth closed
+        off = rim & ~near_other[grown]
+        if not off.any() or ch[grown][off].mean() < _OUTLINE_SHARE:
             continue
         if own_free[win][grown][hole].mean() > 0.5:
             continue  # its own session saw floor inside: not solid

@@ -688,6 +688,54 @@ def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], ad
     return out
 
 
+def _slid_unlabelled(objs: list[_Obj], others: list[_Obj], own_changed: NDArray[np.bool_],
+                     other_changed: NDArray[np.bool_], other_plain: NDArray[np.bool_], spec: GridSpec,
+                     st: ChangeSettings, in_a: bool) -> list[tuple[_Obj, _Obj]]:
+    """Objects that slid by less than their length where the other session's camera labelled nothing.
+    Each of ``objs`` (one session's objects neither gone nor new nor paired) with no object of its class
+    in the other session within their lengths, a face of it (``face_m``) on floor the other session saw
+    (``own_changed``), and, grown from the other session's plain obstacles on its cells
+    (``other_plain``) through that session's changed cells (``other_changed``: obstacles where this
+    session saw floor), a new face as long: the other end is those obstacles, as an object of its class.
+    A couch pushed along its wall keeps most of its outline on the other session's and shows one new
+    end; a new chair standing apart from it is not reached. Pairs are (A's, B's)."""
+    res = spec.resolution
+    out: list[tuple[_Obj, _Obj]] = []
+    used = np.zeros(spec.shape, bool)
+    for o in objs:
+        if not o.src.class_name or o.cells.shape[0] < 3:
+            continue
+        length = max(*o.src.size)
+        if any(ob.src.class_name == o.src.class_name
+               and float(np.linalg.norm(ob.centroid - o.centroid)) <= length + max(*ob.src.size) for ob in others):
+            continue
+        if not _long_pieces(o, own_changed, spec, st.face_m).any():
+            continue
+        on = _cells_near(other_plain & ~used, o.cells, 1.0)
+        if on.shape[0] < 3:
+            continue
+        seed = np.zeros(spec.shape, bool)
+        seed[on[:, 0], on[:, 1]] = True
+        # (through its plain obstacles by the object too: the band within the tolerance of the object's
+        # end, where the other session's obstacles are no change)
+        by = _cells_near(other_plain & ~used, o.cells, st.tolerance_m / res + 2.0)
+        bridge = np.zeros(spec.shape, bool)
+        bridge[by[:, 0], by[:, 1]] = True
+        # (over gaps of a cell: a face resampled into the other grid is dotted)
+        solid = (other_changed | bridge | seed) & ~used
+        grown = _grow_along(seed, _dilate(solid, 1.0), int(math.ceil(length / res))) & solid
+        rr, cc = np.nonzero(grown & other_changed)
+        if rr.size < 2 or res * (max(np.ptp(rr), np.ptp(cc)) + 1) < st.face_m:
+            continue
+        cells = np.argwhere(grown).astype(np.intp)
+        if res * float(np.ptp(cells, axis=0).max()) > 1.3 * length + 2 * res:
+            continue  # larger than the object: something else
+        used |= grown
+        twin = _piece_object(cells, o.src.class_name, spec)
+        out.append((o, twin) if in_a else (twin, o))
+    return out
+
+
 def _pieces(changed: NDArray[np.bool_], spec: GridSpec, group_cells: float) -> list[NDArray[np.intp]]:
     """The cells (n, 2) row, col of each piece of ``changed`` as :func:`_component_changes` joins them
     (cells up to ``group_cells`` apart: the legs of a table are one piece)."""
@@ -1454,6 +1502,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         moved += slid
         only_a = [i for i in only_a if id(gone[i]) not in slid_ids]
         only_b = [j for j in only_b if id(new[j]) not in slid_ids]
+        # an object that slid by less than its length where the other session's camera labelled nothing:
+        # most of it lies on the other session's plain obstacles, so it is neither gone nor new, and there
+        # is no object to pair it with (a couch pushed along its wall)
+        paired = {id(o) for pair in moved for o in pair}
+        moved += _slid_unlabelled([o for o in objs_a if id(o) not in gone_ids and id(o) not in paired], objs_b,
+                                  removed, added & ~semi_b & ~lo.dyn_b, lo.occ_b & ~semi_b & ~lo.dyn_b, spec, st, True)
+        moved += _slid_unlabelled([o for o in objs_b if id(o) not in new_ids and id(o) not in paired], objs_a,
+                                  added, removed & ~semi_a & ~lo.dyn_a, lo.occ_a & ~semi_a & ~lo.dyn_a, spec, st, False)
         # the other end of a move may be cells the camera never labelled (the object stood beside the
         # robot's path, out of the camera's view): a piece of the other session's changes that is no
         # object, of its size, onto which its cells fit

@@ -711,26 +711,34 @@ def _slid_unlabelled(objs: list[_Obj], others: list[_Obj], own_changed: NDArray[
             continue
         if not _long_pieces(o, own_changed, spec, st.face_m).any():
             continue
-        on = _cells_near(other_plain & ~used, o.cells, 1.0)
+        steps = int(math.ceil(length / res))
+        # all of it happens within the growth's reach of the object: work on that window of the grid
+        m = steps + 4
+        r0, c0 = max(int(o.cells[:, 0].min()) - m, 0), max(int(o.cells[:, 1].min()) - m, 0)
+        win = (slice(r0, int(o.cells[:, 0].max()) + m + 1), slice(c0, int(o.cells[:, 1].max()) + m + 1))
+        plain = other_plain[win] & ~used[win]
+        own = o.cells - (r0, c0)
+        on = _cells_near(plain, own, 1.0)
         if on.shape[0] < 3:
             continue
-        seed = np.zeros(spec.shape, bool)
+        seed = np.zeros(plain.shape, bool)
         seed[on[:, 0], on[:, 1]] = True
         # (through its plain obstacles by the object too: the band within the tolerance of the object's
         # end, where the other session's obstacles are no change)
-        by = _cells_near(other_plain & ~used, o.cells, st.tolerance_m / res + 2.0)
-        bridge = np.zeros(spec.shape, bool)
+        by = _cells_near(plain, own, st.tolerance_m / res + 2.0)
+        bridge = np.zeros(plain.shape, bool)
         bridge[by[:, 0], by[:, 1]] = True
         # (over gaps of a cell: a face resampled into the other grid is dotted)
-        solid = (other_changed | bridge | seed) & ~used
-        grown = _grow_along(seed, _dilate(solid, 1.0), int(math.ceil(length / res))) & solid
-        rr, cc = np.nonzero(grown & other_changed)
+        changed = other_changed[win] & ~used[win]
+        solid = changed | bridge | seed
+        grown = _grow_along(seed, _dilate(solid, 1.0), steps) & solid
+        rr, cc = np.nonzero(grown & changed)
         if rr.size < 2 or res * (max(np.ptp(rr), np.ptp(cc)) + 1) < st.face_m:
             continue
-        cells = np.argwhere(grown).astype(np.intp)
+        cells = (np.argwhere(grown) + (r0, c0)).astype(np.intp)
         if res * float(np.ptp(cells, axis=0).max()) > 1.3 * length + 2 * res:
             continue  # larger than the object: something else
-        used |= grown
+        used[win] |= grown
         twin = _piece_object(cells, o.src.class_name, spec)
         out.append((o, twin) if in_a else (twin, o))
     return out

@@ -287,6 +287,66 @@ def test_descriptor_recognises_a_turned_view_and_its_yaw():
                                ring_key(scan_context(se2_apply([0.0, 0.0, 1.1], pts), 20, 60, 15.0)), atol=0.05)
 
 
+def test_descriptor_distance_is_the_best_of_every_column_shift_and_ties_go_to_the_first():
+    """The FFT cross-correlation against the definition: each of the 60 shifts compared column by
+    column; a descriptor with a period (every shift alike) picks shift 0, whatever the rounding."""
+    rng = np.random.default_rng(3)
+    rings, sectors = 20, 60
+
+    def desc(far):
+        return (np.arange(rings)[:, None] < np.ceil(far * rings / 15.0)[None, :]).astype(np.float32)
+
+    query = desc(np.where(rng.uniform(size=sectors) < 0.2, 0.0, rng.uniform(1, 15, sectors)))
+    others = np.stack([desc(np.where(rng.uniform(size=sectors) < 0.2, 0.0, rng.uniform(1, 15, sectors)))
+                       for _ in range(6)] + [np.roll(query, 17, axis=1)])
+    dist, yaw = descriptor_distance(query, others)
+
+    def cosine(a, b):
+        na, nb = np.linalg.norm(a, axis=0), np.linalg.norm(b, axis=0)
+        both = (na > 0) & (nb > 0)
+        return float(np.sum((a * b).sum(axis=0)[both] / (na[both] * nb[both])))
+
+    for c, other in enumerate(others):
+        n_either = max(int((query.sum(axis=0) > 0).sum()), int((other.sum(axis=0) > 0).sum()))
+        sims = [cosine(np.roll(query, -k, axis=1), other) / n_either for k in range(sectors)]
+        assert dist[c] == pytest.approx(1.0 - max(sims), abs=1e-6)
+        assert abs(wrap_angle(yaw[c] + int(np.argmax(sims)) * 2 * math.pi / sectors)) < 1e-9
+    assert dist[-1] == pytest.approx(0.0, abs=1e-8)  # the same view turned by 17 sectors
+    assert abs(wrap_angle(yaw[-1] - 17 * 2 * math.pi / sectors)) < 1e-9
+    flat = desc(np.full(sectors, 7.5))  # a round room: every shift the same
+    d_flat, y_flat = descriptor_distance(flat, flat[None])
+    assert d_flat[0] == pytest.approx(0.0, abs=1e-8) and y_flat[0] == 0.0
+
+
+def test_a_fit_from_a_guess_in_the_wrong_room_gives_up_after_a_few_steps():
+    """A candidate place that only looks alike: with under half of the keyframe's points within reach
+    of the submap after five steps the fit stops (it cannot reach ``min_inliers``) instead of running
+    all 20, and the match is still refused for its inliers."""
+    import semmap.register.loops as lp
+
+    rng = np.random.default_rng(4)
+    cfg = LoopConfig()
+    here = np.array(_box(0.0, 0.0, 8.0, 6.0))
+    there = np.array(_box(0.0, 0.0, 3.0, 11.0))  # another room, from the same spot
+    pts = _scan(np.zeros(3), here, rng)
+    sub = lp._Submap(pts, lp._line_normals(pts))
+    query = _scan(np.zeros(3), there, rng)
+    rounds = []
+    real = lp._correspondences
+
+    def counted(*args, **kwargs):
+        rounds.append(1)
+        return real(*args, **kwargs)
+
+    lp._correspondences = counted
+    try:
+        pose = lp._align(sub, query, np.zeros(3), cfg)
+    finally:
+        lp._correspondences = real
+    assert len(rounds) == lp._HOPELESS_AFTER + 1 < cfg.refine_iterations
+    assert lp._evaluate(sub, query, pose, cfg).inliers < cfg.min_inliers
+
+
 def test_pose_graph_of_2000_keyframes():
     """The solver alone: 2000 keyframes round a 100 m circle 10 times with 0.5°/m heading drift,
     about 180 true loops between laps and 4 false ones."""

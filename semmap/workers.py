@@ -707,7 +707,7 @@ def _pose_array(poses: array) -> NDArray[np.float64]:
 def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection, cfg: dict[str, Any]) -> None:
     from .register import Registrar
 
-    # loop closure's search runs in the fusion worker (see _fusion_body): each scan's ScanStep goes there with it
+    # loop closure runs in the fusion worker (see _fusion_body): each scan's points go there with it
     registrar = Registrar(RegistrationConfig.model_validate(cfg), close_loops_here=False)
     out.send(("ready",))
     cpu0 = time.process_time()
@@ -719,7 +719,7 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
         for painted, odom_pose, prepared in batch:
             pose = registrar.register(painted, odom_pose, prepared)
             poses.extend(pose.tolist())
-            done.append((pose, painted, registrar.loop_step))
+            done.append((pose, painted, registrar.loop_points))
         busy += time.perf_counter() - t0
         to_fusion.send(done)
     to_fusion.send(None)
@@ -751,12 +751,12 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     try:
         while (batch := inbox.recv()) is not None:
             t0 = time.perf_counter()
-            for pose, painted, loop_step in batch:
+            for pose, painted, loop_points in batch:
                 refuse.add(grid, pose, painted)
                 sample.add(len(poses) // 3, painted)
-                if closer is not None and loop_step is not None:
+                if closer is not None and loop_points is not None:
                     t1 = time.perf_counter()
-                    closer.take(loop_step)  # (its keyframe's points, descriptor and step made by the registration)
+                    closer.add(len(poses) // 3, pose, loop_points)
                     loops_s += time.perf_counter() - t1
                 poses.extend(np.asarray(pose, np.float64).tolist())
             busy += time.perf_counter() - t0

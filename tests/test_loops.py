@@ -141,32 +141,6 @@ def test_loops_close_a_drifting_tour(twice_round):
     assert np.max(np.hypot(*(rel[:, :2] - true_rel[:, :2]).T)) < 0.03
 
 
-def test_front_in_one_closer_and_take_in_another_close_the_same_loops(twice_round):
-    """The build makes each keyframe (its points, descriptor and step edge) in the registration worker and
-    searches it in the fusion worker: ``front`` in one closer, its steps passed (pickled, as through a pipe)
-    to ``take`` in another, give the poses and loops of ``add`` in one, exactly; the front closer keeps no
-    keyframe but the last, and a step taken out of order is refused."""
-    import pickle
-
-    closer, _ = twice_round
-    rng = np.random.default_rng(0)
-    est = _drifted(TWICE)
-    front, back = LoopCloser(LoopConfig()), LoopCloser(LoopConfig())
-    steps = []
-    for i, (p, t) in enumerate(zip(est, TWICE)):
-        steps.append(front.front(i, p, _scan(t, ROOM, rng), _step_information(TWICE, i)))
-        back.take(pickle.loads(pickle.dumps(steps[-1])))
-    one, two = closer.optimise(), back.optimise()
-    assert two.loops == one.loops and len(two.loops) >= 20
-    assert np.array_equal(two.poses, one.poses)
-    assert {k: v for k, v in two.stats.items() if not k.startswith("seconds")} == \
-        {k: v for k, v in one.stats.items() if not k.startswith("seconds")}
-    assert front.keyframes == 0 and front.stored_points == 0 and back.keyframes == one.stats["keyframes"]
-    new = [s for s in steps if s.new]
-    with pytest.raises(ValueError, match="in order"):
-        LoopCloser(LoopConfig()).take(new[1])
-
-
 def test_memory_keyframes_only():
     """Only keyframes keep points; a scan costs a few numbers however long the tour."""
     rng = np.random.default_rng(3)

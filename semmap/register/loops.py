@@ -84,7 +84,6 @@ __all__ = [
     "LoopCloser",
     "LoopConfig",
     "LoopResult",
-    "ScanStep",
     "descriptor_distance",
     "ring_key",
     "scan_context",
@@ -846,30 +845,6 @@ class _Loop:
     kind: str  # "tracked", "position", "descriptor" or "external"
 
 
-@dataclass
-class ScanStep:
-    """What :meth:`LoopCloser.front` makes of one registered scan, for :meth:`LoopCloser.take`: the scan's place
-    among the keyframes and, for a new keyframe, everything its search needs (computed from the previous
-    keyframe alone, so the two halves may run in different processes)."""
-
-    index: int
-    keyframe: int  # the keyframe the scan belongs to (a new one: its number)
-    rel: F64  # the scan's pose in that keyframe's frame (a new keyframe: zero)
-    new: bool = False  # the scan is a new keyframe; the fields below are set
-    pose: F64 | None = None  # T_map_kf
-    dist: float = 0.0  # m driven up to it
-    var_yaw: float = 0.0  # heading variance accumulated up to it, rad²
-    z: F64 | None = None  # the step edge from the keyframe before (None: the first keyframe)
-    info: F64 | None = None  # its 3x3 information
-    rematched: bool | None = None  # the step re-fitted to the keyframe before (None: no step, or rematch off)
-    seconds_rematch: float = 0.0
-    points: NDArray[np.float32] | None = None  # (M, 3): x, y (base frame) and line-normal direction
-    dense: F64 | None = None  # (M, 2): its down-sampled points (base frame)
-    source: F64 | None = None  # (S, 2): the ICP source points
-    desc: NDArray[np.bool_] | None = None  # the scan-context descriptor
-    key: NDArray[np.float32] | None = None  # its ring key
-
-
 class _Buffer:
     """A growing (n, width) array (amortised doubling)."""
 
@@ -954,12 +929,10 @@ class LoopCloser:
         self._loops: list[_Loop] = []
         self._last_loop: _Loop | None = None  # the last loop found, carried forward as a candidate
         self._pending: list[_Loop] = []  # loops verified but not yet confirmed by a second one
-        # the running state of :meth:`front`
+        # the running state
         self._last_pose: F64 | None = None
         self._dist = 0.0
         self._cov = np.zeros((3, 3))  # covariance of the current scan relative to its keyframe
-        self._front_keyframes = 0
-        self._front_kf: ScanStep | None = None  # the last keyframe front made
         self._counts = {"candidates": 0, "verified": 0, "accepted": 0, "rejected_inliers": 0,
                         "rejected_degenerate": 0, "rejected_fit": 0, "rejected_gate": 0, "skipped_retry": 0,
                         "unconfirmed": 0, "from_tracked": 0, "from_position": 0, "from_descriptor": 0,
@@ -1004,15 +977,7 @@ class LoopCloser:
         information matrix of the registration step from the previous scan (a right
         perturbation, in this scan's frame), or None for the configured default.
         A keyframe is searched for loops, and its candidates verified, right away.
-        The same as :meth:`take` of :meth:`front`, which may run in two closers (two processes).
         """
-        self.take(self.front(index, pose, points_xy, info))
-
-    def front(self, index: int, pose: ArrayLike, points_xy: ArrayLike, info: ArrayLike | None = None) -> ScanStep:
-        """The first half of :meth:`add` (same arguments), which needs only the keyframe before: whether the scan is
-        a keyframe and, if so, its points, descriptor and step edge (re-fitted to the keyframe before). It keeps
-        only what it needs of the last keyframe, so a closer that runs ``front`` only stays small; pass the result
-        to :meth:`take` of the closer that searches, in order."""
         p = np.asarray(pose, dtype=np.float64).reshape(-1)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise ValueError(f"pose must be a finite (x, y, yaw), got {pose!r}")
@@ -1025,63 +990,43 @@ class LoopCloser:
             adj = _adjoint(se2_inverse(step))
             self._cov = adj @ self._cov @ adj.T + self._step_cov(step, info)
         self._last_pose = p
-        last = self._front_kf
-        n_kf = self._front_keyframes
-        rel = se2_between(last.pose, p) if last is not None and last.pose is not None else np.zeros(3)
-        if last is not None and math.hypot(rel[0], rel[1]) < cfg.keyframe_distance and \
-                abs(rel[2]) < cfg.keyframe_angle:
-            return ScanStep(index, n_kf - 1, rel)
+        n_kf = self._kf_pose.n
+        rel = se2_between(self._kf_pose.view[-1], p) if n_kf else np.zeros(3)
+        if n_kf and math.hypot(rel[0], rel[1]) < cfg.keyframe_distance and abs(rel[2]) < cfg.keyframe_angle:
+            self._scan_index.append(index)
+            self._scan_kf.append(n_kf - 1)
+            self._scan_rel.append(rel)
+            return
         # a new keyframe
         pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
-        dense, source = self._prepare(pts)
-        out = ScanStep(index, n_kf, np.zeros(3), new=True, pose=p, dist=self._dist)
-        if last is not None:
-            out.z, out.info = rel, _inverse_spd(self._cov)
+        prepared = self._prepare(pts)
+        var_yaw = 0.0
+        if n_kf:
+            z, info = rel, _inverse_spd(self._cov)
             if cfg.rematch:
                 t0 = time.perf_counter()
-                out.z, out.info, out.rematched = self._rematch(last, dense, rel, out.info)
-                out.seconds_rematch = time.perf_counter() - t0
-            out.var_yaw = float(last.var_yaw + self._cov[2, 2])
+                z, info = self._rematch(n_kf - 1, prepared[0], rel, info)
+                self._seconds_rematch += time.perf_counter() - t0
+            self._odom_z.append(z)
+            self._odom_info.append(info.ravel())
+            var_yaw = float(self._kf_var_yaw.view[-1, 0] + self._cov[2, 2])
         self._cov = np.zeros((3, 3))
-        desc = scan_context(dense, cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
-        out.desc, out.key = desc > 0.5, ring_key(desc)
-        out.points = np.column_stack([dense, _line_normals(dense)]).astype(np.float32)
-        out.dense, out.source = dense, source
-        self._front_kf = out
-        self._front_keyframes += 1
-        return out
-
-    def take(self, step: ScanStep) -> None:
-        """The second half of :meth:`add`: record a scan :meth:`front` placed (in order) and, for a new keyframe,
-        search for its loops and verify them."""
-        self._scan_index.append(step.index)
-        self._scan_kf.append(step.keyframe)
-        self._scan_rel.append(step.rel)
-        if not step.new:
-            return
-        assert step.pose is not None and step.points is not None and step.source is not None
-        assert step.dense is not None and step.desc is not None and step.key is not None
-        n_kf = self._kf_pose.n
-        if step.keyframe != n_kf:
-            raise ValueError(f"keyframe {step.keyframe} taken after {n_kf} keyframes: take every step, in order")
-        if step.z is not None:
-            assert step.info is not None
-            self._odom_z.append(step.z)
-            self._odom_info.append(step.info.ravel())
-        if step.rematched is not None:
-            self._counts["rematched" if step.rematched else "rematch_kept"] += 1
-        self._seconds_rematch += step.seconds_rematch
-        self._kf_pose.append(step.pose)
-        self._kf_dist.append(step.dist)
-        self._kf_var_yaw.append(step.var_yaw)
-        self._kf_scan.append(step.index)
-        self._kf_desc.append(step.desc)
-        self._kf_key.append(step.key)
-        self._kf_points.append(step.points)
-        if step.source.shape[0] >= self.cfg.min_points:
+        self._scan_index.append(index)
+        self._scan_kf.append(n_kf)
+        self._scan_rel.append(np.zeros(3))
+        self._kf_pose.append(p)
+        self._kf_dist.append(self._dist)
+        self._kf_var_yaw.append(var_yaw)
+        self._kf_scan.append(index)
+        desc = scan_context(prepared[0], cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
+        self._kf_desc.append(desc > 0.5)
+        self._kf_key.append(ring_key(desc))
+        normals = _line_normals(prepared[0])
+        self._kf_points.append(np.column_stack([prepared[0], normals]).astype(np.float32))
+        if prepared[1].shape[0] >= cfg.min_points:
             t0 = time.perf_counter()
-            self._search(n_kf, step.source, step.dense)
+            self._search(n_kf, prepared[1], prepared[0])
             self._seconds_search += time.perf_counter() - t0
 
     def add_loop(self, index_a: int, index_b: int, t_a_b: ArrayLike, info: ArrayLike) -> None:
@@ -1204,28 +1149,29 @@ class LoopCloser:
             raise KeyError(f"no scan numbered {index} was added")
         return int(hits[-1])
 
-    def _rematch(self, last: ScanStep, dense: F64, rel: F64, info: F64) -> tuple[F64, F64, bool]:
-        """The step edge from the keyframe ``last`` to the new one: its points (``dense``, base frame) fitted
-        point-to-line to the last keyframe's, from the registration's relative pose ``rel``.
+    def _rematch(self, j: int, dense: F64, rel: F64, info: F64) -> tuple[F64, F64]:
+        """The step edge from keyframe ``j`` to the new one: its points (``dense``, base frame) fitted
+        point-to-line to keyframe j's, from the registration's relative pose ``rel``.
 
         Scan-to-map registration matches each scan to everything seen within range; where that map
         is sparse or holds an earlier pass of the same place, its steps err by decimetres now and
         then. A direct fit to the previous keyframe is the graph-mapping edge (Kümmerle et al. 2009):
         on the Intel log it halves the median step error. Taken when it passes the loop tests
-        (inliers, conditioning, RMS); otherwise the registration's step and ``info`` are kept (the flag:
-        whether it was taken).
+        (inliers, conditioning, RMS); otherwise the registration's step and ``info`` are kept.
         """
         cfg = self.cfg
-        assert last.points is not None
-        stored = last.points.astype(np.float64)
+        stored = self._kf_points[j].astype(np.float64)
         if stored.shape[0] < cfg.min_points or dense.shape[0] < cfg.min_points:
-            return rel, info, False
+            self._counts["rematch_kept"] += 1
+            return rel, info
         dense = _thin(dense, cfg.max_query_points)
         sub = _Submap(stored[:, :2], stored[:, 2])
         match = _evaluate(sub, dense, _align(sub, dense, rel, cfg), cfg)
         if match.inliers < cfg.min_inliers or match.condition < cfg.min_condition or match.rms > cfg.max_rms:
-            return rel, info, False
-        return match.pose, _inverse_spd(match.cov), True
+            self._counts["rematch_kept"] += 1
+            return rel, info
+        self._counts["rematched"] += 1
+        return match.pose, _inverse_spd(match.cov)
 
     # -- loop detection ------------------------------------------------------------------------
     def _search(self, k: int, source: F64, dense: F64) -> None:

@@ -37,10 +37,9 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
 With ``loop_closure.enabled``, every registered scan also goes to a
 :class:`~semmap.register.loops.LoopCloser`; :meth:`Registrar.close_loops` solves its pose graph
 at the end of the tour. The loop closer needs nothing back until then, so it may run elsewhere
-(``Registrar(cfg, close_loops_here=False)``: the first half of its work, which needs only the last
-keyframe, runs here, :meth:`~semmap.register.loops.LoopCloser.front`, and each scan's result is left in
-:attr:`Registrar.loop_step` for the closer's :meth:`~semmap.register.loops.LoopCloser.take`; the build
-runs the search in the fusion worker, off the registration's critical path).
+(``Registrar(cfg, close_loops_here=False)``: each scan's points are left in
+:attr:`Registrar.loop_points` for it; the build runs it in the fusion worker, off the
+registration's critical path).
 
 With ``exclude_dynamic``, points painted :attr:`~semmap.records.Mobility.DYNAMIC`
 are neither matched nor inserted into the local map. Only beams with ``hit`` set
@@ -142,13 +141,11 @@ class Registrar:
         # loop closure keeps keyframes' points: in odometry mode a matcher down-samples them and does no more
         self._sampler: KissMatcher | None = self._matcher if self._matcher is not None or not \
             cfg.loop_closure.enabled else KissMatcher(cfg)
-        self._closer: Any = loop_closer(cfg)
-        self._closes_here = close_loops_here
+        self._closer: Any = loop_closer(cfg) if close_loops_here else None
         self._loop_stats: dict[str, Any] | None = None
         #: with loop closure run elsewhere (``close_loops_here=False``): the last registered scan's
-        #: :class:`~semmap.register.loops.ScanStep`, for that closer's ``take`` (its keyframe's points, descriptor
-        #: and step edge, made here: the registration has the time, the search is what takes it)
-        self.loop_step: Any = None
+        #: down-sampled points (base frame), for that :class:`~semmap.register.loops.LoopCloser`'s ``add``
+        self.loop_points: NDArray[np.float64] | None = None
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
         rf = cfg.refine
         self._refiner: LineRefiner | None = LineRefiner(neighbours=rf.neighbours) \
@@ -236,15 +233,13 @@ class Registrar:
         odom = _as_pose(odom_pose, "odom_pose")
         if odom is None:
             self._counts["odom_missing"] += 1
-        self.loop_step = None
         prep = prepared if prepared is not None else self.prepare(scan)
         pose = self._odometry_step(odom) if self.cfg.mode == "odometry" else self._scan_step(scan, odom, prep)
         if self.cfg.loop_closure.enabled and prep is not None:
-            step = self._closer.front(self._counts["scans"], pose, prep.scan.map_points[:, :2])
-            if self._closes_here:
-                self._closer.take(step)
+            if self._closer is not None:
+                self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])
             else:
-                self.loop_step = step
+                self.loop_points = prep.scan.map_points[:, :2]
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
             self._driven += float(np.hypot(self._velocity[0], self._velocity[1]))
@@ -259,7 +254,7 @@ class Registrar:
         """With ``loop_closure.enabled``: solve the pose graph of every scan registered so far and return
         the corrected poses (N, 3), one per :meth:`register` call; its counters join :attr:`stats`
         (``loop_closure``). None without loop closure."""
-        if self._closer is None or not self._closes_here:
+        if self._closer is None:
             return None
         t0 = time.perf_counter()
         poses, self._loop_stats = solve_loops(self._closer)

@@ -359,6 +359,12 @@ _LEG_MIN_EXTENT = 0.15
 _RECT_TOL = 0.07
 _RECT_COS = 0.12
 _RECT_SPAN = 2.5
+#: a blob that lies on one circle (``_one_ring``) and is wider than this many times the widest person's leg
+#: (``person_leg_width``) is a pillar, a bin or a pot, no furniture leg: people stand by them as by walls,
+#: so it does not make two legs beside it furniture (random:615 kept someone standing 0.3 m from a pillar
+#: 0.45 m across, 15 % of their cells). Any blob that wide, ring or not, dropped clutter of the real Hokuyo
+#: tours as people (consistency 98.6 -> 98.2 % on before1): rings only
+_POST_WIDTH = 1.0
 
 
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
@@ -423,6 +429,19 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     yy, xx = np.mgrid[-rad:rad + 1, -rad:rad + 1]
     disc = (xx * xx + yy * yy) * res * res <= reach * reach
 
+    posts: dict[int, bool] = {}
+
+    def post(b: int) -> bool:
+        """Whether blob ``b`` is a pillar, a bin or a pot (``_POST_WIDTH``): people stand by them."""
+        if b not in posts:
+            posts[b] = False
+            if w[b] > _POST_WIDTH * hi:
+                x0, y0 = stats[b, cv2.CC_STAT_LEFT], stats[b, cv2.CC_STAT_TOP]
+                box = lab[y0:y0 + stats[b, cv2.CC_STAT_HEIGHT], x0:x0 + stats[b, cv2.CC_STAT_WIDTH]] == b
+                rows, cols = np.nonzero(box)
+                posts[b] = _one_ring(np.column_stack([cols + x0, rows + y0]).astype(np.float64) * res, res)
+        return posts[b]
+
     def alone(p: NDArray[np.float64], blobs: Sequence[int], thin_near: bool = False) -> bool:
         """No occupied cell but those of ``blobs`` within ``reach`` of ``p`` (m, grid frame); with
         ``thin_near``, bar blobs far smaller than the smallest of them: a chair's thin leg, a cell or
@@ -434,6 +453,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         d = disc[max(r0, 0) - r0:max(r0, 0) - r0 + win.shape[0], max(c0, 0) - c0:max(c0, 0) - c0 + win.shape[1]]
         near = win[d & (win > 0) & ~structure[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]]
         others = np.unique(near[~np.isin(near, blobs)])
+        others = others[[not post(int(o)) for o in others]]
         if not others.size:
             return True
         own = list(blobs)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Literal, cast
+from typing import Any, Literal, cast
 
 import cv2
 import numpy as np
@@ -167,8 +167,9 @@ class BoardDetection:
 def _gray(image: NDArray[np.generic]) -> NDArray[np.uint8]:
     a = np.asarray(image)
     if a.dtype != np.uint8:
-        # cv2's stubs do not allow dst=None, which OpenCV takes as "allocate the output"
-        a = cv2.normalize(a, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
+        # OpenCV takes dst=None as "allocate the output"; the stubs of some releases do not (the call goes through
+        # Any, so that the type check passes with every release's stubs)
+        a = cast(Any, cv2).normalize(a, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     if a.ndim == 3:
         a = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
     return cast("NDArray[np.uint8]", a)  # uint8 in, uint8 out: cv2's stubs carry no dtype

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -142,9 +142,10 @@ def _bgr(image: Image) -> NDArray[np.uint8]:
     if image.encoding == "rgb8":
         return np.ascontiguousarray(a[:, :, ::-1])
     if a.dtype != np.uint8:
-        # cv2's stubs do not allow dst=None, which OpenCV takes as "allocate the output"
-        a = cv2.normalize(np.nan_to_num(a.astype(np.float32)), None, 0, 255,  # type: ignore[call-overload]
-                          cv2.NORM_MINMAX).astype(np.uint8)
+        # OpenCV takes dst=None as "allocate the output"; the stubs of some releases do not (the call goes through
+        # Any, so that the type check passes with every release's stubs)
+        a = cast(Any, cv2).normalize(np.nan_to_num(a.astype(np.float32)), None, 0, 255,
+                                     cv2.NORM_MINMAX).astype(np.uint8)
     return cast("NDArray[np.uint8]", cv2.cvtColor(a, cv2.COLOR_GRAY2BGR))  # uint8 in, uint8 out
 
 

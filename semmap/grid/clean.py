@@ -520,7 +520,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     return person[lab]
 
 
-def _has_twin(xy: NDArray[np.float64], pair: Sequence[int], legs_like: NDArray[np.intp],
+def _has_twin(xy: NDArray[np.floating[Any]], pair: Sequence[int], legs_like: NDArray[np.intp],
               seen_dyn: NDArray[Any] | None, seen_lab: NDArray[Any], cfg: CleaningConfig) -> bool:
     """Whether two blobs (centres ``xy``, m) have a twin pair among ``legs_like`` (blobs no wider than a leg):
     the same step between them to within ``_RECT_TOL``, its offset from them square to that step (within

@@ -39,7 +39,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import cv2
 import numpy as np
@@ -481,7 +481,8 @@ class SemanticGrid:
                 if self.n_scans < _U16_MAX:  # counts cannot reach the cap yet: plain add
                     np.add(fr, sub, out=fr, casting="unsafe")
                 else:
-                    cv2.add(fr, 1, dst=fr, mask=sub)  # type: ignore[call-overload]  # cv2's stubs: no scalar src2
+                    # (through Any: the stubs of some OpenCV releases take no scalar src2)
+                    cast(Any, cv2).add(fr, 1, dst=fr, mask=sub)
 
         if hr.size:
             # one sorted key per (cell, evidence code): codes 0-3 mobility, 4+ class layer; cells

@@ -436,10 +436,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if b not in posts:
             posts[b] = False
             if w[b] > _POST_WIDTH * hi:
-                x0, y0 = stats[b, cv2.CC_STAT_LEFT], stats[b, cv2.CC_STAT_TOP]
-                box = lab[y0:y0 + stats[b, cv2.CC_STAT_HEIGHT], x0:x0 + stats[b, cv2.CC_STAT_WIDTH]] == b
-                rows, cols = np.nonzero(box)
-                posts[b] = _one_ring(np.column_stack([cols + x0, rows + y0]).astype(np.float64) * res, res)
+                rows, cols = _blob_cells(lab, stats, b)
+                posts[b] = _one_ring(np.column_stack([cols, rows]).astype(np.float64) * res, res)
         return posts[b]
 
     def alone(p: NDArray[np.float64], blobs: Sequence[int], thin_near: bool = False) -> bool:
@@ -494,7 +492,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     # legs are wide (legs further apart are two blobs): a wall's end 65 cm long and two cells thick, with
     # stray returns beside it, is no person (a real Hokuyo tour, until stop 53)
     for b in np.flatnonzero((w >= lo) & (w <= 2 * hi) & ~veto & ~person & dense):
-        rows, cols = np.nonzero(lab == b)
+        rows, cols = _blob_cells(lab, stats, int(b))
         pts = np.asarray(np.column_stack([cols, rows]) * res, np.float64)
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
         # cell centres lie on whole cells: a width measured from them in float32 is a whole number of
@@ -518,6 +516,14 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         if lo <= thick <= hi - res + 0.02 * res or (thick <= hi + 0.02 * res and _two_lobes(pts, res, lo)):
             person[b] = True
     return person[lab]
+
+
+def _blob_cells(lab: Any, stats: Any, b: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The rows and columns of blob ``b`` of a connected-components labelling (``stats`` its bounding boxes), in
+    the order ``np.nonzero(lab == b)`` gives them, found within the blob's box instead of the whole grid."""
+    x0, y0 = int(stats[b, cv2.CC_STAT_LEFT]), int(stats[b, cv2.CC_STAT_TOP])
+    rows, cols = np.nonzero(lab[y0:y0 + stats[b, cv2.CC_STAT_HEIGHT], x0:x0 + stats[b, cv2.CC_STAT_WIDTH]] == b)
+    return rows + y0, cols + x0  # (lab, stats: cv2's labelling; its stubs type them differently by release)
 
 
 def _has_twin(xy: NDArray[np.floating[Any]], pair: Sequence[int], legs_like: NDArray[np.intp],
@@ -840,9 +846,10 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
     grazed = np.zeros(occ.shape, bool)
     if cfg.transient_ratio > 0:
         # a label too few to count (below min_labelled_hits) asks for _TRANSIENT_LABELLED times the ratio
-        ratio = np.where(lab == 0, cfg.transient_ratio, _TRANSIENT_LABELLED * cfg.transient_ratio)
-        transient = occ & ~runs.on & (lab < cfg.min_labelled_hits) & (
-            layers.free >= ratio * layers.hits.astype(np.float32))
+        # (one float32 copy of the hits, as before: a 150 m floor at 5 cm has 9 million cells)
+        least = cfg.transient_ratio * layers.hits.astype(np.float32)
+        least[lab > 0] *= _TRANSIENT_LABELLED
+        transient = occ & ~runs.on & (lab < cfg.min_labelled_hits) & (layers.free >= least)
         if transient.any():
             # the rim of an obstacle that stays (a thin leg's outer cells, which rays grazing past it
             # cleared) is floor too, but no one paused there: free, not dropped as dynamic

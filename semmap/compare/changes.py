@@ -1772,6 +1772,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # the other session's wall behind it: a cabinet against a wall changes on three faces, and its
         # back, a cell from the other session's wall, is within the tolerance of that wall
         inside = _enclosed(mask == value, other_occ, own_free, other_free, st.max_fill_m2 / (res * res))
+        # (and a cabinet against a wall seen on two faces only: its far end faced away)
+        inside |= _boxed(mask == value, other_occ, own_free, other_free, st.max_fill_m2 / (res * res),
+                         st.face_m / res) & (mask == 0)
         if inside.any():
             mask[inside] = value
             found = _with_insides(found, ids, labels, inside, spec)
@@ -1854,6 +1857,138 @@ def _enclosed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free
         sub = out[win][grown]
         sub |= fill
     return out
+
+
+def _l_box(rows: NDArray[np.intp], cols: NDArray[np.intp], min_side: float, max_cells: float
+           ) -> tuple[tuple[float, float, float, float], float, float, tuple[float, float]] | None:
+    """The box two perpendicular faces of cells (an L) outline: its bounds in the box's axes (u along
+    the first, v along the second: u = col cos + row sin, v = -col sin + row cos), the cosine and sine
+    of its heading, and the u and v of the two sides across from the L's faces. The heading is the one,
+    in 1° steps, at which two adjacent sides are best lined with cells (a minimum-area rectangle is no
+    help: an L's hull is a right triangle, which the box along its long side fits as tightly). None when
+    no two adjacent sides are lined to ``_BOX_FACE``, or a side is shorter than ``min_side`` cells, or
+    the box holds more than ``max_cells``."""
+    rad = np.radians(np.arange(90.0))
+    c, s = np.cos(rad)[:, None], np.sin(rad)[:, None]
+    u, v = cols[None, :] * c + rows[None, :] * s, -cols[None, :] * s + rows[None, :] * c
+    u0, u1, v0, v1 = u.min(axis=1), u.max(axis=1), v.min(axis=1), v.max(axis=1)
+    headings = np.arange(rad.size)[:, None]
+
+    def lined(near: NDArray[np.bool_], along: NDArray[np.float64], lo: NDArray[np.float64],
+              hi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per heading, the share of a side's cell-long stretches that cells within ``near`` line."""
+        bins = np.floor(along - lo[:, None]).astype(np.intp)
+        seen = np.zeros((rad.size, int(bins.max()) + 1), bool)
+        seen[np.broadcast_to(headings, bins.shape)[near], bins[near]] = True
+        return np.asarray(seen.sum(axis=1) / (np.floor(hi - lo) + 1), np.float64)
+
+    cov = {("u", 0): lined(u - u0[:, None] <= 1.5, v, v0, v1), ("u", 1): lined(u1[:, None] - u <= 1.5, v, v0, v1),
+           ("v", 0): lined(v - v0[:, None] <= 1.5, u, u0, u1), ("v", 1): lined(v1[:, None] - v <= 1.5, u, u0, u1)}
+    fits = (np.minimum(u1 - u0, v1 - v0) >= min_side) & ((u1 - u0 + 1) * (v1 - v0 + 1) <= max_cells)
+    best: tuple[float, Any] = (0.0, None)
+    for fu in (0, 1):
+        for fv in (0, 1):
+            # (an L: the sides across from its faces are no faces; three faces and a wall are
+            # :func:`_enclosed`'s, with its stricter outline)
+            across = np.maximum(cov[("u", 1 - fu)], cov[("v", 1 - fv)]) < _BOX_FACE
+            score = np.where(fits & across, np.minimum(cov[("u", fu)], cov[("v", fv)]), 0.0)
+            k = int(np.argmax(score))
+            if score[k] > best[0]:
+                bounds = (float(u0[k]), float(u1[k]), float(v0[k]), float(v1[k]))
+                far = (float(u0[k] if fu else u1[k]), float(v0[k] if fv else v1[k]))
+                best = (float(score[k]), (bounds, float(c[k, 0]), float(s[k, 0]), far))
+    return best[1] if best[0] >= _BOX_FACE else None
+
+
+def _boxed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free: NDArray[np.bool_],
+           other_free: NDArray[np.bool_], max_cells: float, min_side: float) -> NDArray[np.bool_]:
+    """The inside of an obstacle seen on two faces that meet (an L of changed cells) against the
+    other session's wall: a cabinet put against a wall and seen from one corner shows its front and
+    one end; its other end faces away and its back stands a cell from the wall, so no face closes
+    its inside for :func:`_enclosed`. The L's box (:func:`_l_box`) is filled when both faces line
+    ``_BOX_FACE`` of their sides, each at least ``min_side`` cells long, and the sides across from
+    them do not (an L, not a U), the other session's obstacles line ``_BOX_FACE`` of a side across
+    from a face, the box holds at most
+    ``max_cells``, its own session saw at most ``_BOX_SEEN`` of the inside free (solid: a room that
+    two new walls and an old one bound was seen into) and the other session saw at least half of it
+    free (the floor the obstacle now stands on). Only the cells the other session saw free are
+    returned, as for :func:`_enclosed`."""
+    out = np.zeros(changed.shape, bool)
+    if not changed.any():
+        return out
+    # (a face resampled into the common grid is dotted: its pieces are joined across a cell)
+    # (on the changes' bounding box: labelling a whole floor's grid costs more than the rest)
+    pad = 4
+    bx, by, bw, bh = cv2.boundingRect(changed.astype(np.uint8))
+    whole = (slice(max(0, by - 2 * pad), by + bh + 2 * pad), slice(max(0, bx - 2 * pad), bx + bw + 2 * pad))
+    out_all, changed, other_occ = out, changed[whole], other_occ[whole]
+    own_free, other_free, out = own_free[whole], other_free[whole], out[whole]
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(_dilate(changed, 1.0).astype(np.uint8), connectivity=8)
+    for k in range(1, n):
+        x, y, w, h, _area = (int(v) for v in stats[k])
+        if min(h, w) < min_side:
+            continue  # (an L's box is at least min_side either way)
+        win = (slice(max(0, y - pad), y + h + pad), slice(max(0, x - pad), x + w + pad))
+        piece = changed[win] & (labels[win] == k)
+        rows, cols = np.nonzero(piece)
+        if rows.size < 2 * min_side:
+            continue
+        # (an L against a wall touches it: one face runs up to the wall)
+        on_other = _dilate(other_occ[win], 2.0)
+        if not (on_other & piece).any():
+            continue
+        box = _l_box(rows, cols, min_side, max_cells)
+        if box is None:
+            continue
+        (u0, u1, v0, v1), c, sn, far = box
+        rr, cc = np.mgrid[0:piece.shape[0], 0:piece.shape[1]]
+        u, v = cc * c + rr * sn, -cc * sn + rr * c
+
+        # the sides across from the L's two faces, one of which must stand along the other's wall
+        if not (_side_lined(on_other, (u0, u1, v0, v1), c, sn, far[0], None)
+                or _side_lined(on_other, (u0, u1, v0, v1), c, sn, None, far[1])):
+            continue
+        # (behind each face's cells: a face seen at an angle is jagged, a cell or two deep, and the
+        # cells between its bumps on the outer side are floor)
+        face_u, face_v = u0 + u1 - far[0], v0 + v1 - far[1]
+        inside = ((u >= u0) & (u <= u1) & (v >= v0) & (v <= v1) & ~piece & ~other_occ[win]
+                  & _behind(np.abs(u - face_u), v - v0, piece) & _behind(np.abs(v - face_v), u - u0, piece))
+        if not inside.any() or own_free[win][inside].mean() > _BOX_SEEN or other_free[win][inside].mean() < 0.5:
+            continue
+        out[win] |= inside & other_free[win]
+    return out_all
+
+
+def _side_lined(mask: NDArray[np.bool_], bounds: tuple[float, float, float, float], c: float, s: float,
+                at_u: float | None, at_v: float | None) -> bool:
+    """``mask`` lines ``_BOX_FACE`` of a box's side: the side at u = ``at_u`` (or v = ``at_v``) of the
+    box ``bounds`` (u0, u1, v0, v1) in the axes of heading cosine ``c`` and sine ``s``."""
+    u0, u1, v0, v1 = bounds
+    t = np.linspace(0.0, 1.0, 2 * int(max(u1 - u0, v1 - v0)) + 2)
+    pu = np.full(t.shape, at_u) if at_u is not None else u0 + t * (u1 - u0)
+    pv = np.full(t.shape, at_v) if at_v is not None else v0 + t * (v1 - v0)
+    ci = np.clip(np.round(pu * c - pv * s).astype(int), 0, mask.shape[1] - 1)
+    ri = np.clip(np.round(pu * s + pv * c).astype(int), 0, mask.shape[0] - 1)
+    return bool(mask[ri, ci].mean() >= _BOX_FACE)
+
+
+def _behind(depth: NDArray[np.float64], along: NDArray[np.float64], face: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Cells deeper into a box than its face's cells about them: per cell-long stretch along the face,
+    the deepest of its cells within two cells of the side, over the stretch and two either side (a
+    dotted face's gaps)."""
+    bins = np.floor(along).astype(np.intp)
+    band = face & (depth <= 2.5)
+    deepest = np.zeros(int(bins.max()) + 1, np.float64)
+    if band.any():
+        np.maximum.at(deepest, bins[band], depth[band])
+    deepest = ndimage.maximum_filter1d(deepest, 5)
+    return np.asarray(depth > deepest[np.clip(bins, 0, deepest.size - 1)])
+
+
+#: the share of a box's side its face (or the other session's wall) must line, and the most of its
+#: inside its own session may have seen free
+_BOX_FACE = 0.7
+_BOX_SEEN = 0.3
 
 
 def _with_insides(found: list[Change], ids: list[int], labels: NDArray[np.int32], inside: NDArray[np.bool_],

@@ -1771,10 +1771,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # a solid obstacle's inside, which its own session never saw, between the faces that changed and
         # the other session's wall behind it: a cabinet against a wall changes on three faces, and its
         # back, a cell from the other session's wall, is within the tolerance of that wall
-        inside = _enclosed(mask == value, other_occ, own_free, other_free, st.max_fill_m2 / (res * res))
+        changed_here, max_fill = mask == value, st.max_fill_m2 / (res * res)
+        inside = _enclosed(changed_here, other_occ, own_free, other_free, max_fill)
         # (and a cabinet against a wall seen on two faces only: its far end faced away)
-        inside |= _boxed(mask == value, other_occ, own_free, other_free, st.max_fill_m2 / (res * res),
-                         st.face_m / res) & (mask == 0)
+        inside |= _boxed(changed_here, other_occ, own_free, other_free, max_fill, st.face_m / res) & (mask == 0)
         if inside.any():
             mask[inside] = value
             found = _with_insides(found, ids, labels, inside, spec)
@@ -1908,21 +1908,20 @@ def _boxed(changed: NDArray[np.bool_], other_occ: NDArray[np.bool_], own_free: N
     its inside for :func:`_enclosed`. The L's box (:func:`_l_box`) is filled when both faces line
     ``_BOX_FACE`` of their sides, each at least ``min_side`` cells long, and the sides across from
     them do not (an L, not a U), the other session's obstacles line ``_BOX_FACE`` of a side across
-    from a face, the box holds at most
-    ``max_cells``, its own session saw at most ``_BOX_SEEN`` of the inside free (solid: a room that
-    two new walls and an old one bound was seen into) and the other session saw at least half of it
-    free (the floor the obstacle now stands on). Only the cells the other session saw free are
-    returned, as for :func:`_enclosed`."""
+    from a face, the box holds at most ``max_cells``, its own session saw at most ``_BOX_SEEN`` of the
+    inside free (solid: a room that two new walls and an old one bound was seen into) and the other
+    session saw at least half of it free (the floor the obstacle now stands on). Only the cells behind
+    the faces' cells that the other session saw free are returned, as for :func:`_enclosed`."""
     out = np.zeros(changed.shape, bool)
     if not changed.any():
         return out
-    # (a face resampled into the common grid is dotted: its pieces are joined across a cell)
     # (on the changes' bounding box: labelling a whole floor's grid costs more than the rest)
     pad = 4
     bx, by, bw, bh = cv2.boundingRect(changed.astype(np.uint8))
     whole = (slice(max(0, by - 2 * pad), by + bh + 2 * pad), slice(max(0, bx - 2 * pad), bx + bw + 2 * pad))
     out_all, changed, other_occ = out, changed[whole], other_occ[whole]
     own_free, other_free, out = own_free[whole], other_free[whole], out[whole]
+    # (a face resampled into the common grid is dotted: its pieces are joined across a cell)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(_dilate(changed, 1.0).astype(np.uint8), connectivity=8)
     for k in range(1, n):
         x, y, w, h, _area = (int(v) for v in stats[k])

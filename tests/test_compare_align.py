@@ -149,3 +149,31 @@ def test_maps_of_two_tools_at_different_resolutions_align_and_show_the_new_wall(
     assert counts["static_added"] == 1 and counts["static_removed"] == 0, counts
     wall = next(c for c in r.changes if c.type == "static_added")
     assert abs(wall.centroid[0] - 3.5) < 0.25 and abs(wall.centroid[1] - 11.525) < 0.15
+
+
+@pytest.mark.parametrize("yaw_deg", [37.0, -123.0])
+def test_a_large_floor_of_look_alike_rooms_turned_off_the_search_lattice_is_found_within_a_cell(yaw_deg):
+    """Headings are searched first on a field three times coarser than the coarse one (60 cm here),
+    then only the best few again: a 75 m floor of 24 rooms that differ only in their doors and
+    furniture must still come out within a cell and half a degree, and unambiguous."""
+    rng = np.random.default_rng(3)
+    plan = Room((75.0, 45.0))
+    xs, ys = np.linspace(0.0, 75.0, 7), np.linspace(0.0, 45.0, 5)
+    for x in xs[1:-1]:  # walls between the rooms, a door (0.9 m) in each room's stretch of wall
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            d = float(rng.uniform(y0 + 1.0, y1 - 2.0))
+            plan.walls += [(x, y0, x, d), (x, d + 0.9, x, y1)]
+    for y in ys[1:-1]:
+        for x0, x1 in zip(xs[:-1], xs[1:]):
+            d = float(rng.uniform(x0 + 1.0, x1 - 2.0))
+            plan.walls += [(x0, y, d, y), (d + 0.9, y, x1, y)]
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            c = (float(rng.uniform(x0 + 2.0, x1 - 2.0)), float(rng.uniform(y0 + 2.0, y1 - 2.0)))
+            plan.objects.append(("dining table", c, (1.6, 0.8), float(rng.uniform(0.0, math.pi))))
+    T_world_a, T_world_b = np.array([0.0, 0.0, 0.0]), np.array([20.0, -6.0, math.radians(yaw_deg)])
+    a, b = plan.session(T_world_a, "A"), plan.session(T_world_b, "B")
+    al = align_maps(AlignInput.from_session(a), AlignInput.from_session(b))
+    dist, yaw = _error(al.T_a_b, T_world_a, T_world_b, b)
+    assert dist <= RES and yaw <= 0.5
+    assert al.ambiguity < 0.75

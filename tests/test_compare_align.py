@@ -4,6 +4,7 @@ that cannot be aligned refused with one clear line."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -160,15 +161,15 @@ def test_a_large_floor_of_look_alike_rooms_turned_off_the_search_lattice_is_foun
     plan = Room((75.0, 45.0))
     xs, ys = np.linspace(0.0, 75.0, 7), np.linspace(0.0, 45.0, 5)
     for x in xs[1:-1]:  # walls between the rooms, a door (0.9 m) in each room's stretch of wall
-        for y0, y1 in zip(ys[:-1], ys[1:]):
+        for y0, y1 in itertools.pairwise(ys):
             d = float(rng.uniform(y0 + 1.0, y1 - 2.0))
             plan.walls += [(x, y0, x, d), (x, d + 0.9, x, y1)]
     for y in ys[1:-1]:
-        for x0, x1 in zip(xs[:-1], xs[1:]):
+        for x0, x1 in itertools.pairwise(xs):
             d = float(rng.uniform(x0 + 1.0, x1 - 2.0))
             plan.walls += [(x0, y, d, y), (d + 0.9, y, x1, y)]
-    for x0, x1 in zip(xs[:-1], xs[1:]):
-        for y0, y1 in zip(ys[:-1], ys[1:]):
+    for x0, x1 in itertools.pairwise(xs):
+        for y0, y1 in itertools.pairwise(ys):
             c = (float(rng.uniform(x0 + 2.0, x1 - 2.0)), float(rng.uniform(y0 + 2.0, y1 - 2.0)))
             plan.objects.append(("dining table", c, (1.6, 0.8), float(rng.uniform(0.0, math.pi))))
     T_world_a, T_world_b = np.array([0.0, 0.0, 0.0]), np.array([20.0, -6.0, math.radians(yaw_deg)])

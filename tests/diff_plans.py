@@ -59,6 +59,8 @@ class Room:
         self.unlabelled: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
         #: half the width of those legs (0: a single cell each, a table's thin legs)
         self.unlabelled_leg_half = 0.02
+        #: half the width of the listed objects' legs (0: a single cell each)
+        self.leg_half = 0.02
         #: round objects (a pot): class, centre, radius, and the bearing (rad, world) the session saw
         #: it from; drawn as the half of its rim facing that way, listed as an object
         self.round: list[tuple[str, tuple[float, float], float, float]] = []
@@ -112,7 +114,8 @@ class Room:
             held = np.zeros(spec.shape, bool)
             for i, leg in enumerate(legs):  # a leg: a 4 cm square
                 if i not in unseen:
-                    square = leg + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)])
+                    lh = self.leg_half
+                    square = leg + np.array([[dx, dy] for dx in (-lh, 0, lh) for dy in (-lh, 0, lh)])
                     mark(square, occ, semi)
                     if i in listed_here:
                         mark(square, held)

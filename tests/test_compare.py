@@ -1309,3 +1309,24 @@ def test_a_screen_gone_beside_two_new_poles_alike_is_gone_not_moved():
     b.unlabelled += [("pole", (6.0, 4.0), (0.04, 0.04), 0.0), ("pole", (4.0, 4.1), (0.04, 0.04), 0.0)]
     counts = _diff(a, b).counts()
     assert counts["object_moved"] == 0 and counts["object_disappeared"] == 1 and counts["static_added"] == 2
+
+
+@pytest.mark.parametrize("listed_in", ["A", "B"])
+def test_a_chair_one_session_listed_leg_by_leg_moved_is_one_move(listed_in):
+    # a build may list each leg of a chair as a chair of its own: four one-leg objects, each too small
+    # to judge alone. They are one chair, and it moved
+    a, b = Room(), Room()
+    a.leg_half = b.leg_half = 0.0  # thin legs: one cell each
+    here, there = ("chair", (6.0, 3.0), (0.45, 0.45), 0.0), ("chair", (6.3, 4.5), (0.45, 0.45), math.radians(60))
+    by_legs, whole = (a, b) if listed_in == "A" else (b, a)
+    chair = here if listed_in == "A" else there
+    by_legs.objects += [chair] * 4
+    by_legs.listed_legs.update({k: (k,) for k in range(4)})
+    by_legs.unseen_legs.update({k: tuple(i for i in range(4) if i != k) for k in range(1, 4)})
+    whole.objects.append(there if listed_in == "A" else here)
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_disappeared"] == counts["object_appeared"] == 0
+    assert counts["static_added"] == counts["static_removed"] == 0
+    assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)

@@ -1198,6 +1198,16 @@ def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Ob
     return objs
 
 
+def _merge_legs(objs: list[_Obj], leg_cells: int, size_of: Any, spec: GridSpec) -> list[_Obj]:
+    """``objs`` with the objects of at most ``leg_cells`` cells (one leg each) joined by class into
+    the objects they fit in (:func:`_merge_fragments`); larger objects as they are."""
+    legs = [o for o in objs if 0 < o.cells.shape[0] <= leg_cells]
+    if len(legs) < 2:
+        return objs
+    leg_ids = {id(o) for o in legs}
+    return [o for o in objs if id(o) not in leg_ids] + _merge_fragments(legs, size_of, spec)
+
+
 def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group_cells: float,
                        min_cells: int) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Connected pieces of ``mask`` (cells up to ``group_cells`` apart join), as changes of ``kind``;
@@ -1451,8 +1461,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
 
         sizes = load_class_table()
         near = max(1.0, tol)
-        objs_a = _objects(a.objects, None, spec, lo.semi_a & lo.occ_a, lo.index_a)
-        objs_b = _objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b, lo.index_b)
+        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
+        # a build may list each leg of a chair as an object of its own, too small to judge alone: the
+        # legs of one class that fit in one object of it are that object
+        objs_a = _merge_legs(_objects(a.objects, None, spec, lo.semi_a & lo.occ_a, lo.index_a), leg_cells,
+                             sizes.size_of, spec)
+        objs_b = _merge_legs(_objects(b.objects, T_a_b, spec, lo.semi_b & lo.occ_b, lo.index_b), leg_cells,
+                             sizes.size_of, spec)
         obs_a, obs_b = lo.occ_a | lo.free_a, lo.occ_b | lo.free_b
         # an object's own cells are furniture by its session's labels: cells its own session saw people
         # on are no evidence, nor cells within a cell and a half (the alignment's wobble) of people the
@@ -1473,7 +1488,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         gone_cells, new_cells = removed & ~still_a, added & ~still_b
         # (and legs the other session kept of it: its legs, or small obstacles, on the object's legs, never
         # its walls: a couch pushed against a wall has its back legs by the wall the other session saw)
-        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
         kept_a = _dilate(_small_blobs(obst_b, leg_cells, join=True) | semi_b, fine)
         kept_b = _dilate(_small_blobs(obst_a, leg_cells, join=True) | semi_a, fine)
         gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,

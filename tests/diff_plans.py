@@ -42,6 +42,9 @@ class Room:
         #: legs flagged movable that no object of the list holds (the nearest object within a metre
         #: takes them)
         self.loose_legs: list[tuple[float, float]] = []
+        #: legs flagged movable that the build put in object k (by its place in ``objects``) though they
+        #: are another thing's: a chair at a bed's foot grouped with the bed
+        self.grouped_legs: dict[int, list[tuple[float, float]]] = {}
         #: legs the map lost to rays grazing past them but which beams hit again and again: free cells,
         #: faint obstacles
         self.faint_legs: list[tuple[float, float]] = []
@@ -119,6 +122,9 @@ class Room:
                     mark(square, occ, semi)
                     if i in listed_here:
                         mark(square, held)
+            for p in self.grouped_legs.get(k, ()):
+                mark(np.array(p) + np.array([[dx, dy] for dx in (-0.02, 0, 0.02) for dy in (-0.02, 0, 0.02)]), occ,
+                     semi, held)
             index[held] = k
             listed = [i for i in self.listed_legs.get(k, range(4)) if i not in unseen]
             if len(listed) == 4:

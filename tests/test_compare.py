@@ -1330,3 +1330,24 @@ def test_a_chair_one_session_listed_leg_by_leg_moved_is_one_move(listed_in):
     assert counts["object_disappeared"] == counts["object_appeared"] == 0
     assert counts["static_added"] == counts["static_removed"] == 0
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
+
+
+def test_a_bed_no_camera_labelled_in_b_moved_less_than_its_length_with_a_chair_its_box_took_in_is_one_move():
+    # A's camera labelled the bed and its build put the legs of the chair at the bed's foot into the
+    # bed's object; B's camera labelled neither. The bed slid 0.45 m along its length, the chair stayed.
+    # The bed's four legs, the object's changed cells, fit the four plain legs B saw; the whole object
+    # does not, two thirds of its cells being the chair's, which stayed (random:628's bed)
+    a, b = Room(), Room()
+    bed_a, bed_b = ("bed", (5.0, 4.0), (2.0, 1.6), 0.0), ("bed", (5.45, 4.0), (2.0, 1.6), 0.0)
+    chair = ("chair", (6.9, 4.0), (0.4, 0.4), 0.0)
+    a.objects.append(bed_a)
+    a.grouped_legs[0] = [tuple(leg) for leg in Room().legs(*chair[1:])]
+    b.unlabelled += [bed_b, chair]
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_appeared"] == counts["object_disappeared"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "bed" and mv.displacement_m == pytest.approx(0.45, abs=0.05)
+    assert np.linalg.norm(_world(mv.from_xy) - bed_a[1]) < 0.05
+    assert np.linalg.norm(_world(mv.to_xy) - bed_b[1]) < 0.05

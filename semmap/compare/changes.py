@@ -840,8 +840,9 @@ def _shape_fit(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple[
 
 def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec: GridSpec, st: ChangeSettings,
                          objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None,
-                         own_walls: NDArray[np.bool_] | None = None, piece_walls: NDArray[np.bool_] | None = None
-                         ) -> tuple[list[tuple[_Obj, _Obj]], set[int]]:
+                         own_walls: NDArray[np.bool_] | None = None, piece_walls: NDArray[np.bool_] | None = None,
+                         own_changed: NDArray[np.bool_] | None = None
+                         ) -> tuple[list[tuple[_Obj, _Obj]], set[int], dict[int, int]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
@@ -861,7 +862,12 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     leg of the piece still on a leg of the object: a table that stood along a wall, of which the
     piece's session saw two legs and a wall. A piece is also taken with the other pieces within the
     object's length of it (up to four): a table's legs stand further apart than pieces are joined.
-    Also returns the ids of the pieces' objects paired through hidden legs."""
+    ``own_changed`` (the objects' session's changed cells): when the whole object does not fit, its
+    changed cells alone, ``min_fit_legs`` legs or more, may fit the piece alone: the legs of a chair
+    that stayed, which the build grouped with the bed that moved, are the bed's unchanged cells. Such
+    an object is paired as its changed cells alone (an object of its own).
+    Also returns the ids of the pieces' objects paired through hidden legs, and the id of each object
+    paired by its changed cells by that of the part paired."""
     res = spec.resolution
     hidden_a = hidden_b = None
     if own_walls is not None:
@@ -874,6 +880,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
     through_hidden: set[int] = set()
+    parts: dict[int, int] = {}
     for o in objs:
         if o.cells.shape[0] < 2:
             continue
@@ -881,12 +888,20 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
         own = _cells_near(other_obstacles, o.cells, 1.5) if other_obstacles is not None else None
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
-        best, best_q, best_cells, best_hidden = None, 0.0, None, False
+        best, best_q, best_cells, best_hidden, best_part = None, 0.0, None, False, False
         o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
+        # (the object's changed cells, when some of it did not change: what moved, if the rest stayed)
+        mxy = None
+        if own_changed is not None:
+            part = own_changed[o.cells[:, 0], o.cells[:, 1]]
+            if 2 <= part.sum() < part.size:
+                mxy, m_cells = oxy[part], o.cells[part]
+                if _legs(mxy, 1.6 * res).shape[0] < st.min_fit_legs:
+                    mxy = None
         for ks, piece in _piece_groups(pieces, used, oxy, length, st.max_move_m, spec):
             if piece.shape[0] < 2:
                 continue
-            cells = piece
+            cells, by_part = piece, False
             if o_tree is not None and own is not None and \
                     float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
                 cells = np.unique(np.concatenate([piece, own]), axis=0)
@@ -907,6 +922,13 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                 q2, legs2, hid2 = _shape_fit(src, dst, turns, res, piece_hidden[0], piece_hidden[1], st.min_fit_legs)
                 if legs2 >= st.min_fit_legs:
                     q, legs, by_hidden = q2, legs2, hid2
+            if q < st.unlabelled_fit and mxy is not None:
+                # or what changed of the object fits the piece, leg for leg (the rest of it stayed)
+                p_only = _cells_xy(piece, spec)
+                q3, legs3, _ = _shape_fit(mxy, p_only, turns, res) if objects_in_a else \
+                    _shape_fit(p_only, mxy, turns, res)
+                if q3 >= st.unlabelled_fit and legs3 >= st.min_fit_legs:
+                    q, legs, by_hidden, cells, by_part = q3, legs3, False, piece, True
             if q < st.unlabelled_fit or q <= best_q:
                 continue
             if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle
@@ -914,7 +936,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     o_arc = (_piece_arc(o.cells, length, spec),)
                 if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
                     continue
-            best, best_q, best_cells, best_hidden = ks, q, cells, by_hidden
+            best, best_q, best_cells, best_hidden, best_part = ks, q, cells, by_hidden, by_part
         if best is None and _pole(oxy, st):
             # a pole (a screen's stand, a lamp: one leg at LiDAR height) has no shape to fit: its other end
             # is the one pole-sized piece near it (the nearest, by half again as near as any other)
@@ -929,10 +951,14 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             continue
         used.update(best)
         twin = _piece_object(best_cells, o.src.class_name, spec)
+        if best_part:  # what moved of it: its changed cells, the rest stayed
+            part_obj = _Obj(o.src, _cells_xy(m_cells, spec).mean(axis=0), o.yaw, np.zeros((0, 2)), m_cells)
+            parts[id(part_obj)] = id(o)
+            o = part_obj
         out.append((o, twin) if objects_in_a else (twin, o))
         if best_hidden:
             through_hidden.add(id(twin))
-    return out, through_hidden
+    return out, through_hidden, parts
 
 
 def _pole(xy: NDArray[np.float64], st: ChangeSettings) -> bool:
@@ -1576,12 +1602,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             if not objs_idx:
                 continue
             whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
-            partners, hidden_twins = _unlabelled_partners([whole[i] for i in objs_idx], _pieces(changed, spec, group),
-                                                          spec, st, in_a, other, walls_of(in_a),
-                                                          walls_of(not in_a))
+            # (the objects' own changed cells: a part of one may have moved, the rest stayed)
+            own_changed = (gone_cells | own_legs[True]) if in_a else (new_cells | own_legs[False])
+            partners, hidden_twins, parts = _unlabelled_partners(
+                [whole[i] for i in objs_idx], _pieces(changed, spec, group), spec, st, in_a, other, walls_of(in_a),
+                walls_of(not in_a), own_changed)
             moved += partners
             through_hidden |= hidden_twins
-            done = {id(p[0] if in_a else p[1]) for p in partners}
+            done = {parts.get(id(p[0] if in_a else p[1]), id(p[0] if in_a else p[1])) for p in partners}
             objs_idx[:] = [i for i in objs_idx if id(whole[i]) not in done]
         # and furniture neither camera labelled (beside the path in both tours) moved when a piece of
         # A's removed cells fits one of B's added cells, legs on legs; the pieces the moves above

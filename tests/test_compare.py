@@ -1332,13 +1332,17 @@ def test_a_chair_one_session_listed_leg_by_leg_moved_is_one_move(listed_in):
     assert r.of_type("object_moved")[0].displacement_m == pytest.approx(math.hypot(0.3, 1.5), abs=0.05)
 
 
-def test_a_bed_no_camera_labelled_in_b_moved_less_than_its_length_with_a_chair_its_box_took_in_is_one_move():
+@pytest.mark.parametrize("motion", ["slid", "turned"])
+def test_a_bed_no_camera_labelled_in_b_moved_less_than_its_length_with_a_chair_its_box_took_in_is_one_move(motion):
     # A's camera labelled the bed and its build put the legs of the chair at the bed's foot into the
-    # bed's object; B's camera labelled neither. The bed slid 0.45 m along its length, the chair stayed.
-    # The bed's four legs, the object's changed cells, fit the four plain legs B saw; the whole object
-    # does not, two thirds of its cells being the chair's, which stayed (random:628's bed)
+    # bed's object; B's camera labelled neither. The bed slid 0.45 m along its length (or turned 80°
+    # and moved 1.5 m away from the chair); the chair stayed. The bed's four legs, the object's changed
+    # cells, fit the four plain legs B saw; the whole object does not, two thirds of its cells being the
+    # chair's (random:628's bed; 609's turned, where B's legs and the chair's span more than a bed)
     a, b = Room(), Room()
-    bed_a, bed_b = ("bed", (5.0, 4.0), (2.0, 1.6), 0.0), ("bed", (5.45, 4.0), (2.0, 1.6), 0.0)
+    bed_a = ("bed", (5.0, 4.0), (2.0, 1.2), 0.0)
+    bed_b = ("bed", (5.45, 4.0), (2.0, 1.2), 0.0) if motion == "slid" else \
+        ("bed", (3.5, 4.3), (2.0, 1.2), math.radians(80))
     chair = ("chair", (6.9, 4.0), (0.4, 0.4), 0.0)
     a.objects.append(bed_a)
     a.grouped_legs[0] = [tuple(leg) for leg in Room().legs(*chair[1:])]
@@ -1348,6 +1352,8 @@ def test_a_bed_no_camera_labelled_in_b_moved_less_than_its_length_with_a_chair_i
     assert counts["object_moved"] == 1, counts
     assert counts["object_appeared"] == counts["object_disappeared"] == 0, counts
     mv = r.of_type("object_moved")[0]
-    assert mv.class_name == "bed" and mv.displacement_m == pytest.approx(0.45, abs=0.05)
+    assert mv.class_name == "bed"
+    assert mv.displacement_m == pytest.approx(math.dist(bed_a[1], bed_b[1]), abs=0.05)
     assert np.linalg.norm(_world(mv.from_xy) - bed_a[1]) < 0.05
     assert np.linalg.norm(_world(mv.to_xy) - bed_b[1]) < 0.05
+    assert mv.rotation_deg == pytest.approx(math.degrees(bed_b[3]), abs=3.0)

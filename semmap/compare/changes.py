@@ -906,29 +906,34 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
                 cells = np.unique(np.concatenate([piece, own]), axis=0)
             pxy, p_len, _, p_yaw = _piece_box(cells, spec)
-            if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) > st.max_move_m:
-                continue
-            if p_len > 1.3 * length + 2 * res:
-                continue  # larger than the object: something else
-            src, dst = (oxy, pxy) if objects_in_a else (pxy, oxy)
-            # candidate turns as for two objects: none and the turn between the boxes, each also by
-            # quarter and half turns
-            box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
-            turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
-            q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
-            if legs < st.min_fit_legs and piece_hidden is not None:
-                # or the piece's own session holds some of the object's legs in its wall: a table that
-                # stood along a wall, whose two far legs are all that session saw of it
-                q2, legs2, hid2 = _shape_fit(src, dst, turns, res, piece_hidden[0], piece_hidden[1], st.min_fit_legs)
-                if legs2 >= st.min_fit_legs:
-                    q, legs, by_hidden = q2, legs2, hid2
+            q, legs, by_hidden = 0.0, 0, False
+            # (not farther than a move, nor larger than the object: something else)
+            if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) <= st.max_move_m \
+                    and p_len <= 1.3 * length + 2 * res:
+                src, dst = (oxy, pxy) if objects_in_a else (pxy, oxy)
+                # candidate turns as for two objects: none and the turn between the boxes, each also by
+                # quarter and half turns
+                box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
+                turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+                q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
+                if legs < st.min_fit_legs and piece_hidden is not None:
+                    # or the piece's own session holds some of the object's legs in its wall: a table that
+                    # stood along a wall, whose two far legs are all that session saw of it
+                    q2, legs2, hid2 = _shape_fit(src, dst, turns, res, piece_hidden[0], piece_hidden[1],
+                                                 st.min_fit_legs)
+                    if legs2 >= st.min_fit_legs:
+                        q, legs, by_hidden = q2, legs2, hid2
             if q < st.unlabelled_fit and mxy is not None:
-                # or what changed of the object fits the piece, leg for leg (the rest of it stayed)
-                p_only = _cells_xy(piece, spec)
-                q3, legs3, _ = _shape_fit(mxy, p_only, turns, res) if objects_in_a else \
-                    _shape_fit(p_only, mxy, turns, res)
-                if q3 >= st.unlabelled_fit and legs3 >= st.min_fit_legs:
-                    q, legs, by_hidden, cells, by_part = q3, legs3, False, piece, True
+                # or what changed of the object fits the piece alone, leg for leg (the rest of it stayed)
+                pxy, p_len, _, p_yaw = _piece_box(piece, spec)
+                if float(np.linalg.norm(pxy.mean(axis=0) - mxy.mean(axis=0))) <= st.max_move_m \
+                        and p_len <= 1.3 * length + 2 * res:
+                    box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
+                    turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+                    q3, legs3, _ = _shape_fit(mxy, pxy, turns, res) if objects_in_a else \
+                        _shape_fit(pxy, mxy, turns, res)
+                    if q3 >= st.unlabelled_fit and legs3 >= st.min_fit_legs:
+                        q, legs, by_hidden, cells, by_part = q3, legs3, False, piece, True
             if q < st.unlabelled_fit or q <= best_q:
                 continue
             if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle

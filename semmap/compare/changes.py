@@ -625,6 +625,14 @@ def _box_turn(yaw_a: float, yaw_b: float) -> float:
     return d
 
 
+def _candidate_turns(yaw_a: float, yaw_b: float) -> tuple[float, ...]:
+    """The turns a fit of two boxes tries: none and the turn between their headings (:func:`_box_turn`),
+    each also by quarter and half turns (a box looks alike turned half way round, a square one a
+    quarter)."""
+    box = _box_turn(yaw_a, yaw_b)
+    return tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+
+
 def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
                    ) -> tuple[list[tuple[int, int]], list[int], list[int]]:
     """Pairs (index in A, index in B) of the same object, then A's and B's unmatched objects."""
@@ -911,10 +919,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) <= st.max_move_m \
                     and p_len <= 1.3 * length + 2 * res:
                 src, dst = (oxy, pxy) if objects_in_a else (pxy, oxy)
-                # candidate turns as for two objects: none and the turn between the boxes, each also by
-                # quarter and half turns
-                box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
-                turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+                turns = _candidate_turns(o.yaw, p_yaw) if objects_in_a else _candidate_turns(p_yaw, o.yaw)
                 q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
                 if legs < st.min_fit_legs and piece_hidden is not None:
                     # or the piece's own session holds some of the object's legs in its wall: a table that
@@ -928,8 +933,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                 pxy, p_len, _, p_yaw = _piece_box(piece, spec)
                 if float(np.linalg.norm(pxy.mean(axis=0) - mxy.mean(axis=0))) <= st.max_move_m \
                         and p_len <= 1.3 * length + 2 * res:
-                    box = _box_turn(o.yaw, p_yaw) if objects_in_a else _box_turn(p_yaw, o.yaw)
-                    turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+                    turns = _candidate_turns(o.yaw, p_yaw) if objects_in_a else _candidate_turns(p_yaw, o.yaw)
                     q3, legs3, _ = _shape_fit(mxy, pxy, turns, res) if objects_in_a else \
                         _shape_fit(pxy, mxy, turns, res)
                     if q3 >= st.unlabelled_fit and legs3 >= st.min_fit_legs:
@@ -1048,8 +1052,7 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
                 continue
             if float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0))) > st.max_move_m:
                 continue
-            turn = _box_turn(pa[3], pb[3])
-            turns = tuple(base + q for base in (0.0, turn) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+            turns = _candidate_turns(pa[3], pb[3])
             q, legs, _ = _shape_fit(pa[0], pb[0], turns, res)
             if q < st.unlabelled_fit:
                 continue
@@ -1697,10 +1700,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             cells_a = _with_touching(oa, loose_a, spec, sizes.size_of)
             cells_b = _with_touching(ob, loose_b, spec, sizes.size_of)
             src_xy, dst_xy = _cells_xy(cells_a, spec), _cells_xy(cells_b, spec)
-            # candidate turns: none and the turn between the two boxes, each also by quarter and half
-            # turns (a box looks alike turned half way round, a square one a quarter)
-            box = _box_turn(oa.yaw, ob.yaw)
-            turns = tuple(base + q for base in (0.0, box) for q in (0.0, math.pi / 2, -math.pi / 2, math.pi))
+            turns = _candidate_turns(oa.yaw, ob.yaw)
             fa: Callable[[NDArray[np.float64]], NDArray[np.bool_]] = furniture_a
             fb: Callable[[NDArray[np.float64]], NDArray[np.bool_]] = furniture_b
             if id(oa) in through_hidden or id(ob) in through_hidden:

@@ -1357,3 +1357,30 @@ def test_a_bed_no_camera_labelled_in_b_moved_less_than_its_length_with_a_chair_i
     assert np.linalg.norm(_world(mv.from_xy) - bed_a[1]) < 0.05
     assert np.linalg.norm(_world(mv.to_xy) - bed_b[1]) < 0.05
     assert mv.rotation_deg == pytest.approx(math.degrees(bed_b[3]), abs=3.0)
+
+
+def test_the_other_sessions_wall_by_an_objects_legs_does_not_keep_them_from_fitting_the_legs_it_moved_to():
+    # A's chair stood with its back legs a cell from the wall; B saw the wall there and the chair's four
+    # legs, no camera labelled, 0.5 m along it. B's wall by the chair's old legs, taken with B's legs
+    # as where the chair went (legs it may have put back on its old places), is longer than any chair:
+    # the legs alone fit the chair's (random:622's chair)
+    from semmap.compare.changes import ChangeSettings, _Obj, _unlabelled_partners
+    from semmap.grid.clean import SemiStaticObject
+    from semmap.records import GridSpec
+
+    spec = GridSpec(RES, 0.0, 0.0, 80, 40)
+
+    def legs(x0, y0):  # a 0.4 m square of 2 x 2-cell legs, lower-left leg at cell (y0, x0)
+        return np.array([(y0 + dy + r, x0 + dx + c) for dy in (0, 8) for dx in (0, 8) for r in (0, 1)
+                         for c in (0, 1)], np.intp)
+
+    chair_cells, moved = legs(30, 2), legs(20, 3)
+    wall = np.zeros(spec.shape, bool)
+    wall[0:2, :] = True  # the wall, rows 0-1: the chair's back legs stand in row 2
+    other = wall.copy()
+    other[moved[:, 0], moved[:, 1]] = True
+    src = SemiStaticObject("chair", (1.72, 0.32), (0.45, 0.45), 0.0, chair_cells.shape[0])
+    chair = _Obj(src, np.array([1.72, 0.32]), 0.0, np.zeros((0, 2)), chair_cells)
+    pairs, _, _ = _unlabelled_partners([chair], [moved], spec, ChangeSettings(), True, other)
+    assert len(pairs) == 1 and pairs[0][0] is chair
+    assert np.array_equal(np.unique(pairs[0][1].cells, axis=0), np.unique(moved, axis=0))

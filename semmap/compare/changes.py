@@ -914,6 +914,11 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
                 cells = np.unique(np.concatenate([piece, own]), axis=0)
             pxy, p_len, _, p_yaw = _piece_box(cells, spec)
+            if p_len > 1.3 * length + 2 * res and cells is not piece:
+                # (the other session's obstacles on the object's cells are a wall it stood by, not legs
+                # of its own: the piece alone)
+                cells = piece
+                pxy, p_len, _, p_yaw = _piece_box(cells, spec)
             q, legs, by_hidden = 0.0, 0, False
             # (not farther than a move, nor larger than the object: something else)
             if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) <= st.max_move_m \

@@ -965,8 +965,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             continue
         used.update(best)
         twin = _piece_object(best_cells, o.src.class_name, spec)
-        if best_part:  # what moved of it: its changed cells, the rest stayed
-            part_obj = _Obj(o.src, _cells_xy(m_cells, spec).mean(axis=0), o.yaw, np.zeros((0, 2)), m_cells)
+        if best_part:  # what moved of it: its changed cells, the rest stayed (boxed as they are)
+            part_obj = _piece_object(m_cells, o.src.class_name, spec)
             parts[id(part_obj)] = id(o)
             o = part_obj
         out.append((o, twin) if objects_in_a else (twin, o))

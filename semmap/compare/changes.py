@@ -898,6 +898,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
         best, best_q, best_cells, best_hidden, best_part = None, 0.0, None, False, False
         o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
+        max_len = 1.3 * length + 2 * res  # (a piece longer than the object is something else)
         # (the object's changed cells, when some of it did not change: what moved, if the rest stayed)
         mxy = None
         if own_changed is not None:
@@ -914,15 +915,15 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                     float(o_tree.query(_cells_xy(piece, spec))[0].min()) <= length:
                 cells = np.unique(np.concatenate([piece, own]), axis=0)
             pxy, p_len, _, p_yaw = _piece_box(cells, spec)
-            if p_len > 1.3 * length + 2 * res and cells is not piece:
+            if p_len > max_len and cells is not piece:
                 # (the other session's obstacles on the object's cells are a wall it stood by, not legs
                 # of its own: the piece alone)
                 cells = piece
                 pxy, p_len, _, p_yaw = _piece_box(cells, spec)
             q, legs, by_hidden = 0.0, 0, False
-            # (not farther than a move, nor larger than the object: something else)
+            # (not farther than a move, nor larger than the object)
             if float(np.linalg.norm(pxy.mean(axis=0) - oxy.mean(axis=0))) <= st.max_move_m \
-                    and p_len <= 1.3 * length + 2 * res:
+                    and p_len <= max_len:
                 src, dst = (oxy, pxy) if objects_in_a else (pxy, oxy)
                 turns = _candidate_turns(o.yaw, p_yaw) if objects_in_a else _candidate_turns(p_yaw, o.yaw)
                 q, legs, by_hidden = _shape_fit(src, dst, turns, res, hidden_a, hidden_b, st.min_fit_legs)
@@ -937,7 +938,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                 # or what changed of the object fits the piece alone, leg for leg (the rest of it stayed)
                 pxy, p_len, _, p_yaw = _piece_box(piece, spec)
                 if float(np.linalg.norm(pxy.mean(axis=0) - mxy.mean(axis=0))) <= st.max_move_m \
-                        and p_len <= 1.3 * length + 2 * res:
+                        and p_len <= max_len:
                     turns = _candidate_turns(o.yaw, p_yaw) if objects_in_a else _candidate_turns(p_yaw, o.yaw)
                     q3, legs3, _ = _shape_fit(mxy, pxy, turns, res) if objects_in_a else \
                         _shape_fit(pxy, mxy, turns, res)

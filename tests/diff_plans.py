@@ -55,6 +55,9 @@ class Room:
         #: how far off the heading of an object's box in the list is (rad; a box drawn around three legs
         #: of a table need not follow the table)
         self.box_yaw_error: dict[int, float] = {}
+        #: the (length, width) the build gave object k's box in the list, when not its legs' (a box drawn
+        #: round the chair its build grouped with it too)
+        self.box_size: dict[int, tuple[float, float]] = {}
         #: whether the session knows which object holds each movable cell (a semmap map folder does:
         #: the diff regroups its cells as the build did)
         self.object_layer = True
@@ -138,7 +141,7 @@ class Room:
                 fp = se2_apply(t_map_world, np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]]))
                 dims = (float(max(hi - lo)), float(min(hi - lo)))
             cm = se2_apply(t_map_world, cw[None])[0]
-            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), dims,
+            objs.append(SemiStaticObject(cls, (float(cm[0]), float(cm[1])), self.box_size.get(k, dims),
                                          float(yaw + self.box_yaw_error.get(k, 0.0) - T_world_map[2]), 16, 5,
                                          tuple(map(tuple, fp))))
         for cls, c, radius, seen_from in self.round:

@@ -850,7 +850,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                          objects_in_a: bool, other_obstacles: NDArray[np.bool_] | None = None,
                          own_walls: NDArray[np.bool_] | None = None, piece_walls: NDArray[np.bool_] | None = None,
                          own_changed: NDArray[np.bool_] | None = None
-                         ) -> tuple[list[tuple[_Obj, _Obj]], set[int], dict[int, int]]:
+                         ) -> tuple[list[tuple[_Obj, _Obj]], set[int], set[int]]:
     """Moves whose other end the camera did not label: each object of ``objs`` (gone from A, or new
     in B, with no object of its class to match) paired with a piece of the other session's changed
     cells that are no object (``pieces``: B's added, or A's removed) of about its size, within
@@ -874,8 +874,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     changed cells alone, ``min_fit_legs`` legs or more, may fit the piece alone: the legs of a chair
     that stayed, which the build grouped with the bed that moved, are the bed's unchanged cells. Such
     an object is paired as its changed cells alone (an object of its own).
-    Also returns the ids of the pieces' objects paired through hidden legs, and the id of each object
-    paired by its changed cells by that of the part paired."""
+    Also returns the ids of the pieces' objects paired through hidden legs, and those of the objects
+    of ``objs`` paired (whole or by a part)."""
     res = spec.resolution
     hidden_a = hidden_b = None
     if own_walls is not None:
@@ -888,7 +888,7 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
     out: list[tuple[_Obj, _Obj]] = []
     used: set[int] = set()
     through_hidden: set[int] = set()
-    parts: dict[int, int] = {}
+    paired: set[int] = set()
     for o in objs:
         if o.cells.shape[0] < 2:
             continue
@@ -966,14 +966,13 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
             continue
         used.update(best)
         twin = _piece_object(best_cells, o.src.class_name, spec)
+        paired.add(id(o))
         if best_part:  # what moved of it: its changed cells, the rest stayed (boxed as they are)
-            part_obj = _piece_object(m_cells, o.src.class_name, spec)
-            parts[id(part_obj)] = id(o)
-            o = part_obj
+            o = _piece_object(m_cells, o.src.class_name, spec)
         out.append((o, twin) if objects_in_a else (twin, o))
         if best_hidden:
             through_hidden.add(id(twin))
-    return out, through_hidden, parts
+    return out, through_hidden, paired
 
 
 def _pole(xy: NDArray[np.float64], st: ChangeSettings) -> bool:
@@ -1618,12 +1617,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             whole = {i: _with_legs(objs_all[i], own_legs[in_a], spec, sizes.size_of) for i in objs_idx}
             # (the objects' own changed cells: a part of one may have moved, the rest stayed)
             own_changed = (gone_cells | own_legs[True]) if in_a else (new_cells | own_legs[False])
-            partners, hidden_twins, parts = _unlabelled_partners(
+            partners, hidden_twins, done = _unlabelled_partners(
                 [whole[i] for i in objs_idx], _pieces(changed, spec, group), spec, st, in_a, other, walls_of(in_a),
                 walls_of(not in_a), own_changed)
             moved += partners
             through_hidden |= hidden_twins
-            done = {parts.get(id(p[0] if in_a else p[1]), id(p[0] if in_a else p[1])) for p in partners}
             objs_idx[:] = [i for i in objs_idx if id(whole[i]) not in done]
         # and furniture neither camera labelled (beside the path in both tours) moved when a piece of
         # A's removed cells fits one of B's added cells, legs on legs; the pieces the moves above

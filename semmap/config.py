@@ -850,6 +850,17 @@ class CleaningConfig(_Model):
                                                                    "obstacle that stays is its rim (rays grazing "
                                                                    "a thin leg), freed but not dropped as dynamic "
                                                                    "(0: off)")
+    faint_leg_ratio: float = Field(0.0, ge=0, le=1, description="(opt-in, 0.1 measured) also occupied: a leg "
+                                                                "cells that returned at least this share of the scans "
+                                                                "that observed them (3 returns or more), that the "
+                                                                "camera labelled furniture and never a person, "
+                                                                "farther than faint_leg_people_distance from any "
+                                                                "person evidence: a thin leg the rays grazing past it "
+                                                                "outvoted (0: off)")
+    faint_leg_people_distance: float = Field(0.3, ge=0, le=10, description="how far a faint leg must be from cells "
+                                                                             "labelled or dropped as people, m")
+    faint_leg_max_cells: int = Field(6, ge=1, le=1000, description="the largest piece of such cells that counts as "
+                                                                   "legs")
     person_max_size: float = Field(1.0, ge=0, le=10, description="a blob of touching cells up to this long that "
                                                                 "holds dynamic evidence leaves whole, m")
     label_spread_distance: float = Field(0.6, ge=0, le=100, description="unlabelled cells take their object's "

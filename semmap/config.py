@@ -850,8 +850,9 @@ class CleaningConfig(_Model):
                                                                    "obstacle that stays is its rim (rays grazing "
                                                                    "a thin leg), freed but not dropped as dynamic "
                                                                    "(0: off)")
-    faint_leg_ratio: float = Field(0.0, ge=0, le=1, description="(opt-in, 0.1 measured) also occupied: a leg "
-                                                                "cells that returned at least this share of the scans "
+    faint_leg_ratio: float = Field(0.0, ge=0, le=1, description="(opt-in, 0.1 measured) also occupied: a piece "
+                                                                "of cells touching no obstacle that returned at least "
+                                                                "this share of the scans "
                                                                 "that observed them (3 returns or more), that the "
                                                                 "camera labelled furniture and never a person, "
                                                                 "farther than faint_leg_people_distance from any "

@@ -921,7 +921,6 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
 
     dropped = occ & dyn
     occupied = occ & ~dropped & ~grazed
-    semi = semi & occupied
     if cfg.faint_leg_ratio > 0:
         legs = _faint_legs(layers, occupied, dropped | (s_dyn > 0), s_semi, s_dyn, cfg)
         occupied |= legs
@@ -940,8 +939,7 @@ def _faint_legs(layers: GridLayers, occupied: NDArray[np.bool_], people: NDArray
                 s_semi: NDArray[np.float32], s_dyn: NDArray[np.float32], cfg: CleaningConfig) -> NDArray[np.bool_]:
     """Thin furniture legs the log-odds lost whole: cells not occupied, touching no occupied cell, that
     returned for at least ``faint_leg_ratio`` of the scans that observed them (``_FAINT_LEG_MIN_HITS``
-    returns or more), that the
-    camera labelled furniture (a semi-static label) and never a person, in pieces of at most
+    returns or more), that the camera labelled furniture (a semi-static label) and never a person, in pieces of at most
     ``faint_leg_max_cells`` cells, and farther than ``faint_leg_people_distance`` from ``people`` (cells
     labelled dynamic or dropped as people). A 4 cm leg fills part of its 5 cm cell: rays grazing past it
     cross the cell more often than beams end in it (a table leg: 30-40 returns among 170-200 rays), and it

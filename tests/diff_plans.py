@@ -51,6 +51,8 @@ class Room:
         #: legs the map lost whose cells beams still ended in a few times among the many that passed
         #: (glimpsed, below the faint share)
         self.glimpsed_legs: list[tuple[float, float]] = []
+        #: walls (segments) whose cells rest on one or two returns each: weak obstacles
+        self.weak_walls: list[tuple[float, float, float, float]] = []
         self.unseen: list[tuple[float, float, float, float]] = []  # boxes the session did not observe
         #: how far off the heading of an object's box in the list is (rad; a box drawn around three legs
         #: of a table need not follow the table)
@@ -97,9 +99,11 @@ class Room:
             for layer in layers:
                 layer[rc[ok, 0], rc[ok, 1]] = True
 
-        for x0, y0, x1, y1 in self.walls:
-            n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
-            mark(np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1), occ)
+        weak = np.zeros(spec.shape, bool)
+        for walls, layers in ((self.walls, (occ,)), (self.weak_walls, (occ, weak))):
+            for x0, y0, x1, y1 in walls:
+                n = int(math.hypot(x1 - x0, y1 - y0) / (RES / 3)) + 2
+                mark(np.stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)], axis=1), *layers)
         # the floor: every cell centre inside the room, in the world
         rows, cols = np.mgrid[0:spec.height, 0:spec.width]
         centres = np.stack([spec.origin_x + (cols.ravel() + 0.5) * RES, spec.origin_y + (rows.ravel() + 0.5) * RES],
@@ -198,6 +202,6 @@ class Room:
         free = inside & ~occ
         return Session(Path(name), spec, occ & (inside | occ), free, semi, dyn, tuple(objs), True,
                        faint=faint & ~occ, object_index=index if self.object_layer else None,
-                       glimpsed=glimpsed & ~occ)
+                       glimpsed=glimpsed & ~occ, weak=weak)
 
 

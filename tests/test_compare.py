@@ -169,6 +169,26 @@ def test_a_new_wall_is_a_static_change_with_its_cells_in_the_mask():
     assert not (r.mask == 2).any()
 
 
+@pytest.mark.parametrize("firm_share", [0.0, 0.3, 0.8])
+def test_a_new_wall_most_of_whose_cells_rest_on_a_return_or_two_is_left_out_and_a_firm_one_is_not(firm_share):
+    """B's map holds a 2 m line where A's beams passed (a far wall seen once, edge-on): when most of its
+    cells were hit by fewer than three returns it is no change, counted as left out; when most were
+    hit more often it is a new obstacle."""
+    a, b = Room(), Room()
+    split = 3.0 + 2.0 * firm_share
+    if firm_share > 0:
+        b.walls.append((3.0, 4.0, split, 4.0))
+    b.weak_walls.append((split, 4.0, 5.0, 4.0))
+    r = _diff(a, b)
+    if firm_share < 0.5:
+        assert r.counts()["static_added"] == 0, r.counts()
+        assert not (r.mask == 1).any()
+        assert r.left_out["weak_obstacles"] == 1
+    else:
+        assert r.counts()["static_added"] == 1 and r.left_out["weak_obstacles"] == 0
+        assert np.allclose(_world(r.of_type("static_added")[0].centroid), (4.0, 4.0), atol=0.15)
+
+
 def test_removed_and_appeared_objects_and_a_geometric_diff():
     a, b = Room(), Room()
     a.objects.append(("chair", (2.0, 2.0), (0.5, 0.45), 0.0))

@@ -67,6 +67,9 @@ class Session:
     #: too weak to call an obstacle, but no evidence that an object the other session saw there is gone.
     #: None for a plain map
     glimpsed: NDArray[np.bool_] | None = None
+    #: occupied cells that fewer than ``FAINT_MIN_HITS`` returns ended in (a wall seen once, edge-on, from
+    #: across a room): too little to call a change on alone. None for a plain map
+    weak: NDArray[np.bool_] | None = None
     #: the name reports give the session (None: its folder's, see :attr:`name`)
     label: str | None = None
 
@@ -245,7 +248,8 @@ def open_session(path: str | Path) -> Session:
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
         return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
                        m.objects, bool(m.class_names), faint=faint,
-                       object_index=_object_index(p, m), glimpsed=glimpsed)
+                       object_index=_object_index(p, m), glimpsed=glimpsed,
+                       weak=occupied & (hits < FAINT_MIN_HITS))
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

@@ -263,5 +263,7 @@ def _report(r: DiffResult, path: Path) -> None:
               f"{left.get('objects_unobserved_in_a', 0)} of B's that A did not see; "
               f"{left.get('wall_faces', 0)} strips along a wall that one session saw from one side only; "
               f"{left.get('hidden_faces', 0)} faces one session saw only edge-on (beside what it never "
-              "observed, such as the inside of a pillar).", ""]
+              "observed, such as the inside of a pillar); "
+              f"{left.get('weak_obstacles', 0)} obstacles most of whose cells rest on one or two LiDAR returns "
+              "(a far wall seen once, edge-on).", ""]
     path.write_text("\n".join(lines), encoding="utf-8")

@@ -1858,15 +1858,15 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     return changes, mask, left_out
 
 
-#: a static change piece is left out when at most this share of its cells is a firm obstacle (hit by three
-#: returns or more, ``FAINT_MIN_HITS``) in its own session. On the development pairs random:640-659 the
+#: a static change piece is left out when fewer than this share of its cells are firm obstacles (hit by
+#: three returns or more, ``FAINT_MIN_HITS``) in its own session. On the development pairs random:640-659 the
 #: two false pieces (B's corridor wall seen edge-on beyond a door, 0.15 m off A's wall) held 0 and 36 %
 #: firm cells; the 60 other pieces 71 % or more (the least: a closed door seen from across a room)
 _WEAK_SHARE = 0.5
 
 
 def _weak_pieces(labels: NDArray[np.int32], slices: list[Any], ids: list[int], weak: NDArray[np.bool_]) -> set[int]:
-    """The pieces (label ids) whose cells are weak obstacles (more than ``_WEAK_SHARE`` of them)."""
+    """The pieces (label ids) fewer than ``_WEAK_SHARE`` of whose cells are firm (not ``weak``)."""
     out = set()
     for k in ids:
         sl = slices[k - 1]

@@ -1288,6 +1288,28 @@ def test_a_table_against_a_wall_is_gone_on_its_free_legs_alone(b_sees):
         assert front.shape[0] >= 4 and np.all(np.abs(front[:, 0] - 3.0) > 0.6)  # the front legs' cells
 
 
+def test_a_chair_that_went_from_against_a_wall_has_its_unlabelled_back_legs_in_the_mask_not_the_walls_roughness():
+    # A's chair stood with its back legs 10 cm from the north wall: the camera labelled its front legs
+    # only, and A's map joins the back legs to the wall (one obstacle). B saw floor there: the back legs
+    # are within the tolerance of B's wall, yet they went with the chair, two cells and more out from
+    # B's wall. A cell of A's wall standing out by one cell beside the chair is the wall's roughness
+    # (a wall resampled into the other map's grid), no leg
+    a, b = Room(), Room()
+    a.objects.append(("chair", (3.0, 7.705), (0.45, 0.45), 0.0))
+    a.unseen_legs[0] = (2, 3)  # the back legs, at y = 7.9: not in the object
+    for x in (2.805, 3.195):
+        for dx in (-0.02, 0.0, 0.02):
+            a.walls.append((x + dx, 7.88, x + dx, 8.0))
+    a.walls.append((3.33, 7.95, 3.38, 7.95))  # the wall's roughness
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_disappeared"] == 1 and counts["static_removed"] == 0, counts
+    removed = _mask_world(r, 2)
+    for x in (2.805, 3.195):  # each back leg's cells
+        assert np.count_nonzero((np.abs(removed[:, 0] - x) < 0.05) & (removed[:, 1] > 7.85)) >= 3, removed
+    assert not np.any(removed[:, 0] > 3.28), removed  # nothing of the wall beside it
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

@@ -1214,6 +1214,16 @@ def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool
     return _cells_near(other_changed, cells, max(*o.src.size, 2 * res) / res).shape[0] < 2
 
 
+def _on_legs(o: _Obj, leg_cells: int) -> bool:
+    """Whether the object's cells are legs (two or more groups of a leg's size at most, holding 80 % of
+    them): a chair or a table at LiDAR height, not a couch's face."""
+    if o.cells.shape[0] < 2:
+        return False
+    sizes = np.bincount(_clusters(o.cells.astype(np.float64), 1.5))
+    legs = sizes <= leg_cells
+    return int(legs.sum()) >= 2 and int(sizes[legs].sum()) >= 0.8 * o.cells.shape[0]
+
+
 def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Obj]:
     """Join pieces of one object: a build may list a bed as two objects where the other found one.
     Pieces of one class merge while the smallest box around the whole is no longer than that class's
@@ -1691,7 +1701,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             grown = walls_of(in_a)
             return lambda xy: furniture(xy) | _lookup(grown, spec, xy)
 
-        def mark(o: _Obj, changed: NDArray[np.bool_], other_free: NDArray[np.bool_], zone: NDArray[np.bool_],
+        def mark(o: _Obj, zone: NDArray[np.bool_], changed: NDArray[np.bool_], other_free: NDArray[np.bool_],
                  value: int) -> None:
             """Into the mask: the changed cells in the object's zone, and the object's own cells the
             other session saw free, however near a wall (a couch pushed against one is within the
@@ -1700,6 +1710,36 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             r, c = o.cells[:, 0], o.cells[:, 1]
             own = other_free[r, c] & zone[r, c]
             mask[r[own], c[own]] = value
+
+        # what no camera labelled of an object that changed changed with it: its legs the LiDAR alone saw,
+        # in the open, or against a wall, where its own map joins them to the wall and the other session's
+        # wall is within the tolerance of them (that session saw floor on them): leg-sized pieces of its
+        # obstacles on the other session's floor that stand out two cells or more from the other's
+        # obstacles (a wall resampled into the other grid is a cell off here and there), for an object on
+        # legs (a couch's face is no leg, and the wall beside it no part of it)
+        bumps: dict[bool, NDArray[np.bool_]] = {}
+
+        def bumps_of(in_a: bool) -> NDArray[np.bool_]:
+            if in_a not in bumps:
+                own_occ, other_free = (lo.occ_a, lo.free_b) if in_a else (lo.occ_b, lo.free_a)
+                own_semi, own_dyn, other_obst = (semi_a, lo.dyn_a, obst_b) if in_a else (semi_b, lo.dyn_b, obst_a)
+                cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & _dilate(other_obst, tol), leg_cells)
+                lab, n = ndimage.label(cand, structure=np.ones((3, 3), bool))
+                out = np.bincount(lab[cand & ~_dilate(other_obst, 1.5)], minlength=n + 1) > 0
+                out[0] = False
+                bumps[in_a] = out[lab]
+            return bumps[in_a]
+
+        def with_own_legs(o: _Obj, in_a: bool, zone: NDArray[np.bool_]) -> tuple[_Obj, NDArray[np.bool_]]:
+            """The object with its legs no camera labelled, and ``zone`` grown by their cells (only: the
+            floor between its legs is no change)."""
+            legs = own_legs[in_a] | bumps_of(in_a) if _on_legs(o, leg_cells) else own_legs[in_a]
+            whole = _with_legs(o, legs, spec, sizes.size_of)
+            if whole is o:
+                return o, zone
+            zone = zone.copy()
+            zone[whole.cells[:, 0], whole.cells[:, 1]] = True
+            return whole, zone
 
         # what no camera labelled of a moved object changed with it: a couch's face the build left
         # unflagged, seen in one session only beside its flagged side. It joins the fit (a flagged face
@@ -1755,12 +1795,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                                   oa.src.class_name or None, (float(from_c[0]), float(from_c[1])),
                                   (float(new_c[0]), float(new_c[1])), disp,
                                   turn if elongated and not round_obj else None))  # None: not measurable
-            mark(ob, added, lo.free_a, zone, 1)
-            mark(oa, removed, lo.free_b, zone, 2)
+            mark(*with_own_legs(ob, False, zone), added, lo.free_a, 1)
+            mark(*with_own_legs(oa, True, zone), removed, lo.free_b, 2)
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
+            in_a = kind == "object_disappeared"
             for i in idx:
                 o = objs[i]
-                zone = _dilate(_cell_mask(o, spec), near)
+                full, zone = with_own_legs(o, in_a, _dilate(_cell_mask(o, spec), near))
                 n = int(o.cells.shape[0])
                 at = o.centroid
                 # reported where its cells changed, not at its box's middle: a build may group with a new
@@ -1772,10 +1813,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                     if too_long(o):  # more than one object grouped: only the changed one's cells
                         n = int(changed.sum())
                 changes.append(Change(kind, (float(at[0]), float(at[1])), n * res * res, n, o.src.class_name))
-                if kind == "object_appeared":
-                    mark(o, added, lo.free_a, zone, 1)
+                if in_a:
+                    mark(full, zone, removed, lo.free_b, 2)
                 else:
-                    mark(o, removed, lo.free_b, zone, 2)
+                    mark(full, zone, added, lo.free_a, 1)
         # cells flagged movable, in an object or not, are never static changes
         on_objects = _dilate(on_objects | (lo.semi_a & lo.occ_a) | (lo.semi_b & lo.occ_b), near)
 

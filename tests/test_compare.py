@@ -1310,6 +1310,29 @@ def test_a_chair_that_went_from_against_a_wall_has_its_unlabelled_back_legs_in_t
     assert not np.any(removed[:, 0] > 3.28), removed  # nothing of the wall beside it
 
 
+@pytest.mark.parametrize("dropped_at", ["its other corners", "a step off them"])
+def test_a_new_chair_whose_map_dropped_two_legs_as_a_persons_is_added_on_all_four(dropped_at):
+    # B's new chair, no camera label, thin legs: its map kept two legs (a cell each, too few for a
+    # change or a set) and its cleaning dropped the other two as a person's (people evidence, no
+    # obstacle). Two legs away from people and two dropped blobs at the corners of a chair's rectangle
+    # are the chair: added, all four legs in the mask. The same blobs a step off the corners are no
+    # chair's: nothing is added
+    a, b = Room(), Room()
+    for x in (4.805, 5.195):
+        b.walls.append((x, 3.805, x, 3.805))  # the legs the map kept
+    off = 0.0 if dropped_at == "its other corners" else 0.2
+    b.dropped += [(4.805 + off, 4.195 + off), (5.195 + off, 4.195 + off)]
+    r = _diff(a, b)
+    counts = r.counts()
+    added = _mask_world(r, 1)
+    if off:
+        assert counts["static_added"] == 0 and added.shape[0] == 0, counts
+        return
+    assert counts["static_added"] == 1, counts
+    for leg in ((4.805, 3.805), (5.195, 3.805), (4.805, 4.195), (5.195, 4.195)):
+        assert np.min(np.linalg.norm(added - leg, axis=1)) < 0.05, (leg, added)
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

@@ -1297,16 +1297,23 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
 
 
 def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int,
-              strong: NDArray[np.bool_] | None = None, rect_cells: float = 0.0
+              strong: NDArray[np.bool_] | None = None, rect_cells: float = 0.0,
+              corners_only: NDArray[np.bool_] | None = None
               ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
     whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces; and,
     with ``rect_cells``, first, sets of four at the corners of a rectangle whose sides are at most that
     long (:func:`_rectangles`: a table's or a bed's legs, further apart than a chair's).
     With ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
-    people may be a person's two."""
+    people may be a person's two. Blobs of ``corners_only`` alone may complete a rectangle (as blobs
+    not strong), never a set joined by span: legs the session's cleaning dropped as a person's."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
+    if corners_only is not None and rect_cells > 0:
+        corners_only = corners_only & ~cells
+        cells = cells | corners_only
+    else:
+        corners_only = None
     blobs, n = ndimage.label(cells, structure=np.ones((3, 3), bool))
     if n < (min(min_legs, 4) if rect_cells > 0 else min_legs):  # (a rectangle has four)
         return none
@@ -1317,6 +1324,10 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
                         np.bincount(ids, weights=cc, minlength=n + 1)[1:] / count], axis=1)
     is_strong = np.ones(n, bool) if strong is None else \
         np.bincount(ids, weights=strong[rr, cc], minlength=n + 1)[1:] > 0
+    corner_only = np.zeros(n, bool)
+    if corners_only is not None:  # (a blob wholly of them; one touching a leg of ``cells`` is that leg)
+        corner_only = np.bincount(ids, weights=~corners_only[rr, cc], minlength=n + 1)[1:] == 0
+        is_strong &= ~corner_only
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
     k = 0
     if rect_cells > 0:  # (first: four corners of a rectangle are the stronger shape)
@@ -1325,7 +1336,7 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
             if int(is_strong[idx].sum()) >= 2:
                 k += 1
                 group[1:][idx] = k
-    left = np.flatnonzero(group[1:] == 0)
+    left = np.flatnonzero((group[1:] == 0) & ~corner_only)
     if left.size >= min_legs:
         roots = _clusters(centres[left], span_cells)
         for r, c in zip(*np.unique(roots, return_counts=True), strict=True):
@@ -1488,6 +1499,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # furniture is matched at a finer tolerance than walls: a chair's legs 10 cm from a wall are
     # not the wall (the alignment is good to a cell)
     fine = min(tol, 1.0)
+    leg_cells = max(1, int(round(st.leg_m2 / (res * res))))  # the most cells a leg of furniture has
     # a faint obstacle (a thin leg the map lost to rays grazing past it) is an obstacle here: the
     # session saw something stand there
     obst_a = lo.occ_a if lo.faint_a is None else lo.occ_a | lo.faint_a
@@ -1517,7 +1529,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
 
         sizes = load_class_table()
         near = max(1.0, tol)
-        leg_cells = max(1, int(round(st.leg_m2 / (res * res))))
         # a build may list each leg of a chair as an object of its own, too small to judge alone: the
         # legs of one class that fit in one object of it are that object
         objs_a = _merge_legs(_objects(a.objects, None, spec, lo.semi_a & lo.occ_a, lo.index_a), leg_cells,
@@ -1825,18 +1836,22 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
     for (kind, cells, voided, value, own_occ, own_free, other_occ, other_free, other_semi, own_faint, other_near,
-         own_weak) in (
+         own_weak, own_dyn) in (
             ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.free_b, lo.occ_a,
-             lo.free_a, lo.semi_a, lo.faint_b, near_a, lo.weak_b),
+             lo.free_a, lo.semi_a, lo.faint_b, near_a, lo.weak_b, lo.dyn_b),
             ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.free_a,
-             lo.occ_b, lo.free_b, lo.semi_b, lo.faint_a, near_b, lo.weak_a)):
+             lo.occ_b, lo.free_b, lo.semi_b, lo.faint_a, near_b, lo.weak_a, lo.dyn_a)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
         # when three or more stand within a table's span of each other: furniture, not noise. Legs
         # voided as people's count too, and join the set, when two of its legs stand away from people
-        # (a table a person stood at, whose map dropped cells beside two of its legs)
+        # (a table a person stood at, whose map dropped cells beside two of its legs). And leg-sized
+        # blobs of people evidence its cleaning dropped from the map, on the other session's floor, when
+        # with two legs that stand away from people they make the four corners of a rectangle: a chair
+        # whose map took two of its legs for a person's
+        dropped = _small_blobs(own_dyn & ~own_occ, leg_cells) & other_free & ~other_near & ~on_objects
         f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided, spec, kind, st.leg_span_m / res, st.min_fit_legs,
-                                   ~people, st.leg_rect_m / res)
+                                   ~people, st.leg_rect_m / res, dropped)
         if i2:
             off = int(labels.max())
             on_sets = l2 > 0

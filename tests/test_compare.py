@@ -1333,6 +1333,28 @@ def test_a_new_chair_whose_map_dropped_two_legs_as_a_persons_is_added_on_all_fou
         assert np.min(np.linalg.norm(added - leg, axis=1)) < 0.05, (leg, added)
 
 
+@pytest.mark.parametrize("back_leg", ["two cells out", "a cell out"])
+def test_a_chair_no_camera_labelled_gone_from_a_wall_counts_its_back_leg_two_cells_out(back_leg):
+    # A's chair, no camera label, a cell per leg: two front legs in the open (too few for a set alone)
+    # and a back leg 10 cm from the north wall, within the tolerance of B's wall, where B saw floor.
+    # Standing two cells out from B's wall it is a leg, the set's third: the chair is gone, all three
+    # legs in the mask. One cell out it is the wall's roughness (a wall resampled into another grid is
+    # a cell off here and there): two legs, nothing removed. (B's map in A's frame, no resampling.)
+    a, b = Room(), Room()
+    for x in (4.805, 5.195):
+        a.walls.append((x, 7.51, x, 7.51))
+    y = 7.92 if back_leg == "two cells out" else 7.97
+    a.walls.append((4.805, y, 4.805, y))
+    r = diff_sessions(a.session(T_A, "A"), b.session(T_A, "B"), alignment=Alignment(np.zeros(3)))
+    counts, removed = r.counts(), _mask_world(r, 2)
+    if back_leg == "a cell out":
+        assert counts["static_removed"] == 0 and removed.shape[0] == 0, counts
+        return
+    assert counts["static_removed"] == 1, counts
+    for leg in ((4.805, 7.51), (5.195, 7.51), (4.805, y)):
+        assert np.min(np.linalg.norm(removed - leg, axis=1)) < 0.05, (leg, removed)
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

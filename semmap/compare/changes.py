@@ -1513,6 +1513,23 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # when it lies on that session's people evidence: the other session's walkers, who crossed the place
     # where this session now sees a couch's back, say nothing about what this session saw
     added_raw, removed_raw = lo.occ_b & lo.free_a & ~near_a, lo.occ_a & lo.free_b & ~near_b
+    # legs of furniture against a wall, where a session's own map joins them to the wall and the other
+    # session's wall is within the tolerance of them (that session saw floor on them): leg-sized pieces
+    # of its obstacles on the other session's floor that stand out two cells or more from the other's
+    # obstacles (a wall resampled into the other grid is a cell off here and there)
+    bumps: dict[bool, NDArray[np.bool_]] = {}
+
+    def bumps_of(in_a: bool) -> NDArray[np.bool_]:
+        if in_a not in bumps:
+            own_occ, other_free = (lo.occ_a, lo.free_b) if in_a else (lo.occ_b, lo.free_a)
+            own_semi, own_dyn, other_obst = (semi_a, lo.dyn_a, obst_b) if in_a else (semi_b, lo.dyn_b, obst_a)
+            cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & _dilate(other_obst, tol), leg_cells)
+            lab, n = ndimage.label(cand, structure=np.ones((3, 3), bool))
+            out = np.bincount(lab[cand & ~_dilate(other_obst, 1.5)], minlength=n + 1) > 0
+            out[0] = False
+            bumps[in_a] = out[lab]
+        return bumps[in_a]
+
     added = _void_people(added_raw, people & ~semi_b, _dilate(lo.dyn_b, tol), st, res)
     removed = _void_people(removed_raw, people & ~semi_a, _dilate(lo.dyn_a, tol), st, res)
     changes: list[Change] = []
@@ -1722,28 +1739,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             own = other_free[r, c] & zone[r, c]
             mask[r[own], c[own]] = value
 
-        # what no camera labelled of an object that changed changed with it: its legs the LiDAR alone saw,
-        # in the open, or against a wall, where its own map joins them to the wall and the other session's
-        # wall is within the tolerance of them (that session saw floor on them): leg-sized pieces of its
-        # obstacles on the other session's floor that stand out two cells or more from the other's
-        # obstacles (a wall resampled into the other grid is a cell off here and there), for an object on
-        # legs (a couch's face is no leg, and the wall beside it no part of it)
-        bumps: dict[bool, NDArray[np.bool_]] = {}
-
-        def bumps_of(in_a: bool) -> NDArray[np.bool_]:
-            if in_a not in bumps:
-                own_occ, other_free = (lo.occ_a, lo.free_b) if in_a else (lo.occ_b, lo.free_a)
-                own_semi, own_dyn, other_obst = (semi_a, lo.dyn_a, obst_b) if in_a else (semi_b, lo.dyn_b, obst_a)
-                cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & _dilate(other_obst, tol), leg_cells)
-                lab, n = ndimage.label(cand, structure=np.ones((3, 3), bool))
-                out = np.bincount(lab[cand & ~_dilate(other_obst, 1.5)], minlength=n + 1) > 0
-                out[0] = False
-                bumps[in_a] = out[lab]
-            return bumps[in_a]
-
         def with_own_legs(o: _Obj, in_a: bool, zone: NDArray[np.bool_]) -> tuple[_Obj, NDArray[np.bool_]]:
-            """The object with its legs no camera labelled, and ``zone`` grown by their cells (only: the
-            floor between its legs is no change)."""
+            """The object with its legs no camera labelled (what changed with it), in the open and, for an
+            object on legs, against a wall (a couch's face is no leg, and the wall beside it no part of
+            it); and ``zone`` grown by their cells (only: the floor between its legs is no change)."""
             legs = own_legs[in_a] | bumps_of(in_a) if _on_legs(o, leg_cells) else own_legs[in_a]
             whole = _with_legs(o, legs, spec, sizes.size_of)
             if whole is o:
@@ -1836,11 +1835,11 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
     for (kind, cells, voided, value, own_occ, own_free, other_occ, other_free, other_semi, own_faint, other_near,
-         own_weak, own_dyn) in (
+         own_weak, own_dyn, in_a) in (
             ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.free_b, lo.occ_a,
-             lo.free_a, lo.semi_a, lo.faint_b, near_a, lo.weak_b, lo.dyn_b),
+             lo.free_a, lo.semi_a, lo.faint_b, near_a, lo.weak_b, lo.dyn_b, False),
             ("static_removed", removed & ~on_objects, removed_raw & ~removed & ~on_objects, 2, lo.occ_a, lo.free_a,
-             lo.occ_b, lo.free_b, lo.semi_b, lo.faint_a, near_b, lo.weak_a, lo.dyn_a)):
+             lo.occ_b, lo.free_b, lo.semi_b, lo.faint_a, near_b, lo.weak_a, lo.dyn_a, True)):
         found, kept, labels, ids = _component_changes(cells, spec, kind, st.group_m / res, min_cells)
         # pieces too small to count alone (a leg of a new table no camera labelled is a cell) count
         # when three or more stand within a table's span of each other: furniture, not noise. Legs
@@ -1849,9 +1848,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # blobs of people evidence its cleaning dropped from the map, on the other session's floor, when
         # with two legs that stand away from people they make the four corners of a rectangle: a chair
         # whose map took two of its legs for a person's
+        # whose map took two of its legs for a person's. Legs against a wall (see ``bumps_of``) count
+        # too, as legs by people do: a set needs two legs in the open
         dropped = _small_blobs(own_dyn & ~own_occ, leg_cells) & other_free & ~other_near & ~on_objects
-        f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided, spec, kind, st.leg_span_m / res, st.min_fit_legs,
-                                   ~people, st.leg_rect_m / res, dropped)
+        by_wall = bumps_of(in_a) & ~on_objects & ~cells
+        f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided | by_wall, spec, kind, st.leg_span_m / res,
+                                   st.min_fit_legs, ~people & ~by_wall, st.leg_rect_m / res, dropped)
         if i2:
             off = int(labels.max())
             on_sets = l2 > 0

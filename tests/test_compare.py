@@ -1355,6 +1355,33 @@ def test_a_chair_no_camera_labelled_gone_from_a_wall_counts_its_back_leg_two_cel
         assert np.min(np.linalg.norm(removed - leg, axis=1)) < 0.05, (leg, removed)
 
 
+@pytest.mark.parametrize("new_table", [True, False])
+def test_a_new_table_its_build_grouped_with_the_table_beside_it_that_stayed_is_new(new_table):
+    # B's build listed a new table (four legs, 1.2 m) as one object with the table beside it that A saw
+    # too: a box 3.4 m long, more than one table. Most of its cells did not change, but those that did
+    # are four legs of their own: that table is new, reported at its place. Without it, the same long
+    # box over the one table is no change. (B's map in A's frame, no resampling.)
+    a, b = Room(), Room()
+    table = ("dining table", (3.0, 4.0), (1.6, 0.8), 0.0)
+    a.objects.append(table)
+    b.objects.append(table)
+    if new_table:
+        b.grouped_legs[0] = [tuple(p) for p in Room().legs((5.0, 4.0), (1.2, 0.8), 0.0)]
+    b.box_size[0] = (3.4, 0.8)
+    r = diff_sessions(a.session(T_A, "A"), b.session(T_A, "B"), alignment=Alignment(np.zeros(3)))
+    counts = r.counts()
+    assert counts["object_moved"] == counts["object_disappeared"] == counts["static_added"] == 0, counts
+    if not new_table:
+        assert counts["object_appeared"] == 0 and not np.any(r.mask), counts
+        return
+    assert counts["object_appeared"] == 1, counts
+    new = r.of_type("object_appeared")[0]
+    assert new.class_name == "dining table"
+    assert np.linalg.norm(_world(new.centroid) - (5.0, 4.0)) < 0.15  # (the mean of its legs' cells)
+    added = _mask_world(r, 1)
+    assert added.shape[0] >= 4 and np.all(np.abs(added[:, 0] - 5.0) < 0.65), added
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

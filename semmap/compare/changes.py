@@ -1590,6 +1590,17 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         gone_ids = {id(o) for o in gone}
         new, rests_b = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], too_long, leg_cells,
                                     st.min_fit_legs)
+        # an object too long for its class (more than one, grouped by its build) most of whose cells did
+        # not change may hold one that did: its changed cells, when they are three legs or more of their
+        # own (a new table its build grouped with the one beside it that stayed)
+        for objs_side, changed_ids, changed_cells, rests in ((objs_a, gone_ids, gone_cells, rests_a),
+                                                             (objs_b, {id(o) for o in new}, new_cells, rests_b)):
+            for o in objs_side:
+                if id(o) in changed_ids or not o.cells.shape[0] or not too_long(o):
+                    continue
+                part = o.cells[changed_cells[o.cells[:, 0], o.cells[:, 1]]]
+                if _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
+                    rests.append((part, o.src.class_name))
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True

@@ -1382,6 +1382,23 @@ def test_a_new_table_its_build_grouped_with_the_table_beside_it_that_stayed_is_n
     assert added.shape[0] >= 4 and np.all(np.abs(added[:, 0] - 5.0) < 0.65), added
 
 
+def test_a_new_table_with_one_leg_seen_whole_and_two_thin_ones_is_added_on_all_three():
+    # B's new table, no camera label: one leg seen whole (nine cells, a change of its own) and two thin
+    # legs a cell each, too small alone. The whole leg is no larger than a leg, so it joins the thin
+    # ones in a set: one change, all three legs in the mask. (B's map in A's frame, no resampling.)
+    a, b = Room(), Room()
+    for dx in (-0.03, 0.0, 0.03):
+        b.walls.append((5.57 + dx, 4.34, 5.57 + dx, 4.40))
+    thin = ((4.43, 4.37), (4.43, 3.63))
+    for leg in thin:
+        b.walls.append((*leg, *leg))
+    r = diff_sessions(a.session(T_A, "A"), b.session(T_A, "B"), alignment=Alignment(np.zeros(3)))
+    assert r.counts()["static_added"] == 1, r.counts()
+    added = _mask_world(r, 1)
+    for leg in ((5.57, 4.37), *thin):
+        assert np.min(np.linalg.norm(added - leg, axis=1)) < 0.05, (leg, added)
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

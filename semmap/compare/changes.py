@@ -1863,9 +1863,16 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # too, as legs by people do: a set needs two legs in the open
         dropped = _small_blobs(own_dyn & ~own_occ, leg_cells) & other_free & ~other_near & ~on_objects
         by_wall = bumps_of(in_a) & ~on_objects & ~cells
-        f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided | by_wall, spec, kind, st.leg_span_m / res,
+        # (and pieces kept on their own that are no larger than a leg: a table's leg by a wall that its
+        # wall's cells made a piece, with two thin legs in the room; the set takes such a piece in)
+        sizes_k = np.bincount(labels[kept], minlength=int(labels.max()) + 1)
+        lone_legs = kept & (sizes_k[labels] <= leg_cells)
+        f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided | by_wall | lone_legs, spec, kind, st.leg_span_m / res,
                                    st.min_fit_legs, ~people & ~by_wall, st.leg_rect_m / res, dropped)
         if i2:
+            taken_in = set(np.unique(labels[(l2 > 0) & lone_legs]).tolist())
+            found = [c for c, k in zip(found, ids, strict=True) if k not in taken_in]
+            ids = [k for k in ids if k not in taken_in]
             off = int(labels.max())
             on_sets = l2 > 0
             labels[on_sets] = l2[on_sets] + off

@@ -1399,6 +1399,28 @@ def test_a_new_table_with_one_leg_seen_whole_and_two_thin_ones_is_added_on_all_t
         assert np.min(np.linalg.norm(added - leg, axis=1)) < 0.05, (leg, added)
 
 
+def test_a_table_gone_whose_camera_labelled_one_end_is_reported_at_its_middle_with_all_four_legs():
+    # A's table (1.6 m): the camera labelled its two west legs, the LiDAR alone saw the east ones (plain
+    # obstacles, a leg each). B saw floor there: the table is gone, its four legs in the mask, and it is
+    # reported where the table stood, not at its labelled end 0.77 m off
+    a, b = Room(), Room()
+    table = ("dining table", (5.0, 4.0), (1.6, 0.8), 0.0)
+    a.objects.append(table)
+    a.unseen_legs[0] = (1, 2)  # the east legs: not in the object
+    legs = Room().legs(*table[1:])
+    for x, y in legs[[1, 2]]:
+        for dx in (-0.02, 0.0, 0.02):
+            a.walls.append((x + dx, y - 0.02, x + dx, y + 0.02))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_disappeared"] == 1 and counts["static_removed"] == 0, counts
+    gone = r.of_type("object_disappeared")[0]
+    assert np.linalg.norm(_world(gone.centroid) - (5.0, 4.0)) < 0.1, _world(gone.centroid)
+    removed = _mask_world(r, 2)
+    for leg in legs:
+        assert np.min(np.linalg.norm(removed - leg, axis=1)) < 0.05, (leg, removed)
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

@@ -1823,14 +1823,23 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             for i in idx:
                 o = objs[i]
                 full, zone = with_own_legs(o, in_a, _dilate(_cell_mask(o, spec), near))
-                n = int(o.cells.shape[0])
+                n = int(full.cells.shape[0])
                 at = o.centroid
                 # reported where its cells changed, not at its box's middle: a build may group with a new
                 # table the wall its labels bled onto (random:266: 0.55 m off), or a new couch with one
-                # beside it that stayed
-                changed = (added if kind == "object_appeared" else removed)[o.cells[:, 0], o.cells[:, 1]]
+                # beside it that stayed. Its legs no camera labelled changed with it (a table labelled at
+                # one end is reported at its middle)
+                held = full.cells
+                changed = (added if kind == "object_appeared" else removed)[held[:, 0], held[:, 1]]
+                if full is not o:
+                    w = spec.width
+                    changed |= ~np.isin(held[:, 0] * w + held[:, 1], o.cells[:, 0] * w + o.cells[:, 1])
                 if changed.any():
-                    at = _cells_xy(o.cells[changed], spec).mean(axis=0)
+                    # (of furniture on legs, the middle of the box around them: legs of more cells or
+                    # fewer; of a face, the middle of its cells, which a box would put behind it)
+                    xy = _cells_xy(held[changed], spec)
+                    at = np.asarray(cv2.minAreaRect(xy.astype(np.float32))[0], np.float64) \
+                        if xy.shape[0] >= 3 and _on_legs(full, leg_cells) else xy.mean(axis=0)
                     if too_long(o):  # more than one object grouped: only the changed one's cells
                         n = int(changed.sum())
                 changes.append(Change(kind, (float(at[0]), float(at[1])), n * res * res, n, o.src.class_name))

@@ -189,6 +189,27 @@ def test_a_new_wall_most_of_whose_cells_rest_on_a_return_or_two_is_left_out_and_
         assert np.allclose(_world(r.of_type("static_added")[0].centroid), (4.0, 4.0), atol=0.15)
 
 
+@pytest.mark.parametrize("where", ["in a doorway", "in the open"])
+def test_a_door_closed_in_a_doorway_on_a_return_or_two_is_added_and_a_weak_line_in_the_open_is_not(where):
+    # B's robot saw a closed door from far off, its cells hit by one or two returns each (weak). A weak
+    # line in the open is a far wall seen once, edge-on: no change. A door across a doorway, A's wall
+    # continuing its line beyond both its ends, is a door closed: added however few returns it had
+    a, b = Room(), Room()
+    if where == "in a doorway":
+        for room in (a, b):
+            room.walls += [(0.0, 5.0, 4.0, 5.0), (4.9, 5.0, 10.0, 5.0)]
+        b.weak_walls.append((4.0, 5.0, 4.9, 5.0))
+    else:
+        b.weak_walls.append((4.0, 3.0, 4.9, 3.0))
+    r = _diff(a, b)
+    if where == "in the open":
+        assert r.counts()["static_added"] == 0 and r.left_out["weak_obstacles"] == 1, r.counts()
+        return
+    assert r.counts()["static_added"] == 1 and r.left_out["weak_obstacles"] == 0, (r.counts(), r.left_out)
+    added = _mask_world(r, 1)
+    assert np.all(np.abs(added[:, 1] - 5.0) < 0.08) and np.ptp(added[:, 0]) >= 0.6, added
+
+
 def test_removed_and_appeared_objects_and_a_geometric_diff():
     a, b = Room(), Room()
     a.objects.append(("chair", (2.0, 2.0), (0.5, 0.45), 0.0))

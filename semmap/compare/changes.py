@@ -1401,6 +1401,8 @@ def _with_legs(o: _Obj, legs: NDArray[np.bool_], spec: GridSpec, size_of: Any) -
 def _small_blobs(occ: NDArray[np.bool_], max_cells: int, join: bool = False) -> NDArray[np.bool_]:
     """Obstacles of at most ``max_cells`` cells (8-connected): legs of furniture, posts, not walls. With
     ``join``, cells a cell apart are one obstacle (a wall resampled into the other map's grid is dotted)."""
+    if not occ.any():
+        return np.zeros_like(occ)
     lab, n = ndimage.label(_dilate(occ, 1.0) if join else occ, structure=np.ones((3, 3), bool))
     if n == 0:
         return np.zeros_like(occ)
@@ -1504,8 +1506,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # session saw something stand there
     obst_a = lo.occ_a if lo.faint_a is None else lo.occ_a | lo.faint_a
     obst_b = lo.occ_b if lo.faint_b is None else lo.occ_b | lo.faint_b
-    near_a = np.where(semi_b, _dilate(obst_a, fine), _dilate(obst_a, tol))
-    near_b = np.where(semi_a, _dilate(obst_b, fine), _dilate(obst_b, tol))
+    wide_a, wide_b = _dilate(obst_a, tol), _dilate(obst_b, tol)
+    near_a = np.where(semi_b, _dilate(obst_a, fine), wide_a)
+    near_b = np.where(semi_a, _dilate(obst_b, fine), wide_b)
     # where either session saw people, an obstacle may be a person the other's cleaning left in (a
     # person standing out of the camera's view has no label of its own): no change. Only for pieces
     # a person could be: a cabinet face a metre long with one person-labelled cell beside it is new
@@ -1523,7 +1526,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         if in_a not in bumps:
             own_occ, other_free = (lo.occ_a, lo.free_b) if in_a else (lo.occ_b, lo.free_a)
             own_semi, own_dyn, other_obst = (semi_a, lo.dyn_a, obst_b) if in_a else (semi_b, lo.dyn_b, obst_a)
-            cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & _dilate(other_obst, tol), leg_cells)
+            cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & (wide_b if in_a else wide_a), leg_cells)
             lab, n = ndimage.label(cand, structure=np.ones((3, 3), bool))
             out = np.bincount(lab[cand & ~_dilate(other_obst, 1.5)], minlength=n + 1) > 0
             out[0] = False
@@ -1900,8 +1903,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         faces |= hidden
         if own_weak is not None:
             # an obstacle most of whose cells rest on one or two returns (a wall seen once, edge-on, from
-            # across the room, where the other session's beams passed many times) is too little to call
-            weak = _weak_pieces(labels, slices, [k for k in ids if k not in faces], own_weak)
+            # across the room, where the other session's beams passed many times) is too little to call;
+            # not a door closed in a doorway, which a robot on the far side sees with few returns
+            weak = {k for k in _weak_pieces(labels, slices, [k for k in ids if k not in faces], own_weak)
+                    if not _in_doorway(labels, slices, k, other_walls, st.door_min_m / res)}
             left_out["weak_obstacles"] += len(weak)
             faces |= weak
         # a change reaches on, through its own obstacle cells the other session saw free, up to the

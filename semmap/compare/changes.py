@@ -1526,11 +1526,22 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         if in_a not in bumps:
             own_occ, other_free = (lo.occ_a, lo.free_b) if in_a else (lo.occ_b, lo.free_a)
             own_semi, own_dyn, other_obst = (semi_a, lo.dyn_a, obst_b) if in_a else (semi_b, lo.dyn_b, obst_a)
-            cand = _small_blobs(own_occ & other_free & ~own_semi & ~own_dyn & (wide_b if in_a else wide_a), leg_cells)
-            lab, n = ndimage.label(cand, structure=np.ones((3, 3), bool))
-            out = np.bincount(lab[cand & ~_dilate(other_obst, 1.5)], minlength=n + 1) > 0
-            out[0] = False
-            bumps[in_a] = out[lab]
+            cand = own_occ & other_free & ~own_semi & ~own_dyn & (wide_b if in_a else wide_a)
+            out = np.zeros_like(cand)
+            rr, cc = np.nonzero(cand)
+            if rr.size:  # (on the candidates' cells only: the grid is large, they are few)
+                n, lab, stats, _ = cv2.connectedComponentsWithStats(cand.astype(np.uint8), connectivity=8)
+                ids = lab[rr, cc]
+                h, w = cand.shape  # (no obstacle of the other session in the 3 x 3 around: 2 cells out)
+                far = np.ones(rr.size, bool)
+                for dr in (-1, 0, 1):
+                    for dc in (-1, 0, 1):
+                        far &= ~other_obst[np.clip(rr + dr, 0, h - 1), np.clip(cc + dc, 0, w - 1)]
+                keep = (stats[:, cv2.CC_STAT_AREA] <= leg_cells) & (np.bincount(ids[far], minlength=n) > 0)
+                keep[0] = False
+                sel = keep[ids]
+                out[rr[sel], cc[sel]] = True
+            bumps[in_a] = out
         return bumps[in_a]
 
     added = _void_people(added_raw, people & ~semi_b, _dilate(lo.dyn_b, tol), st, res)
@@ -1877,8 +1888,10 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         by_wall = bumps_of(in_a) & ~on_objects & ~cells
         # (and pieces kept on their own that are no larger than a leg: a table's leg by a wall that its
         # wall's cells made a piece, with two thin legs in the room; the set takes such a piece in)
-        sizes_k = np.bincount(labels[kept], minlength=int(labels.max()) + 1)
-        lone_legs = kept & (sizes_k[labels] <= leg_cells)
+        rk, ck = np.nonzero(kept)
+        lone = np.bincount(labels[rk, ck], minlength=int(labels.max()) + 1)[labels[rk, ck]] <= leg_cells
+        lone_legs = np.zeros_like(kept)
+        lone_legs[rk[lone], ck[lone]] = True
         f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided | by_wall | lone_legs, spec, kind, st.leg_span_m / res,
                                    st.min_fit_legs, ~people & ~by_wall, st.leg_rect_m / res, dropped)
         if i2:

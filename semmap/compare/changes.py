@@ -1881,13 +1881,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # (a table a person stood at, whose map dropped cells beside two of its legs). And leg-sized
         # blobs of people evidence its cleaning dropped from the map, on the other session's floor, when
         # with two legs that stand away from people they make the four corners of a rectangle: a chair
-        # whose map took two of its legs for a person's
         # whose map took two of its legs for a person's. Legs against a wall (see ``bumps_of``) count
         # too, as legs by people do: a set needs two legs in the open
         dropped = _small_blobs(own_dyn & ~own_occ, leg_cells) & other_free & ~other_near & ~on_objects
         by_wall = bumps_of(in_a) & ~on_objects & ~cells
-        # (and pieces kept on their own that are no larger than a leg: a table's leg by a wall that its
-        # wall's cells made a piece, with two thin legs in the room; the set takes such a piece in)
+        # (and pieces kept on their own that are no larger than a leg: a table's leg seen whole is a
+        # change of its own, its two thin legs beside it a cell each; the set takes such a piece in)
         rk, ck = np.nonzero(kept)
         lone = np.bincount(labels[rk, ck], minlength=int(labels.max()) + 1)[labels[rk, ck]] <= leg_cells
         lone_legs = np.zeros_like(kept)

@@ -1442,6 +1442,26 @@ def test_a_table_gone_whose_camera_labelled_one_end_is_reported_at_its_middle_wi
         assert np.min(np.linalg.norm(removed - leg, axis=1)) < 0.05, (leg, removed)
 
 
+@pytest.mark.parametrize("b_sees", ["floor", "the couch"])
+def test_a_couch_gone_part_of_which_the_other_session_never_saw_is_judged_on_what_it_saw(b_sees):
+    # A's couch stood against the north wall (its back within the tolerance of B's wall: no evidence).
+    # B never saw its east end (hidden), and a cabinet now stands on its west end. B saw floor on the
+    # rest of its front: most of what B observed of it is floor, so it is gone. The cells B never saw
+    # say nothing (counted as not changed, they kept it, at stop 61). Where B sees the couch, no change
+    a, b = Room(), Room()
+    back, front = 7.93, 7.1
+    couch = ("couch", [(2.0, back, 4.0, back), (2.0, front, 4.0, front), (2.0, front, 2.0, back),
+                       (4.0, front, 4.0, back)])
+    a.faces.append(couch)
+    b.unseen.append((3.5, 6.9, 4.3, 7.96))
+    b.walls += [(1.95, 7.05, 2.6, 7.05), (1.95, 7.15, 2.6, 7.15)]
+    if b_sees == "the couch":
+        b.faces.append(couch)
+    counts = _diff(a, b).counts()
+    assert counts["object_disappeared"] == (1 if b_sees == "floor" else 0), counts
+    assert counts["object_moved"] == counts["object_appeared"] == 0, counts
+
+
 def test_a_new_tables_legs_by_people_count_toward_its_set_and_a_walkers_blobs_do_not():
     # B's new table, no camera label, thin legs: B's cleaning dropped cells beside its two west legs as a
     # person's, so those two are voided as people and the two left are too few for a table. Voided legs

@@ -1154,7 +1154,8 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
                      other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
                      left_out: dict[str, int], key: str, by_wall: NDArray[np.bool_] | None = None,
                      others: list[_Obj] | None = None,
-                     kept_legs: tuple[NDArray[np.bool_], NDArray[np.bool_], int, float] | None = None) -> list[_Obj]:
+                     kept_legs: tuple[NDArray[np.bool_], NDArray[np.bool_], int, float] | None = None,
+                     too_long: Callable[[_Obj], bool] | None = None) -> list[_Obj]:
     """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). A cell with
     an obstacle of the other session within the tolerance (``still``) is there still; one beside
     people (``people``) with none is no evidence either way; nor, for an object with no object of its
@@ -1189,7 +1190,10 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
             judged = clear & ~(by_wall[r, c] & still[r, c])
             if judged.sum() < max(3, 0.2 * r.size):
                 judged = clear
-        if float(changed[r, c][judged].mean()) >= 0.5 and not (
+        # (of the cells the other session observed: what it never saw says nothing either way; but for
+        # an object too long for its class, more than one, which is judged by its parts that changed)
+        judged_seen = judged if too_long is not None and too_long(o) else judged & other_observed[r, c]
+        if judged_seen.any() and float(changed[r, c][judged_seen].mean()) >= 0.5 and not (
                 kept_legs is not None and _legs_still(o, *kept_legs)):
             out.append(o)
     return out
@@ -1588,17 +1592,17 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # its walls: a couch pushed against a wall has its back legs by the wall the other session saw)
         kept_a = _dilate(_small_blobs(obst_b, leg_cells, join=True) | semi_b, fine)
         kept_b = _dilate(_small_blobs(obst_a, leg_cells, join=True) | semi_a, fine)
-        gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,
-                                "objects_unobserved_in_b", wall_a, objs_b, (kept_a, added, leg_cells, res))
-        new = _changed_objects(objs_b, new_cells, still_b, obs_a, people_for_b, st, left_out,
-                               "objects_unobserved_in_a", wall_b, objs_a, (kept_b, removed, leg_cells, res))
-        # an object whose legs stand on an unchanged object of its class in the other session is that
-        # object, seen more fully by one session (two legs of a chair in A, four in B)
-        new_ids = {id(o) for o in new}
         def too_long(o: _Obj) -> bool:
             """Longer than one object of its class can be: more than one, grouped by its build."""
             return bool(o.src.class_name) and max(o.src.size) > 1.1 * float(sizes.size_of(o.src.class_name)) + res
 
+        gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,
+                                "objects_unobserved_in_b", wall_a, objs_b, (kept_a, added, leg_cells, res), too_long)
+        new = _changed_objects(objs_b, new_cells, still_b, obs_a, people_for_b, st, left_out,
+                               "objects_unobserved_in_a", wall_b, objs_a, (kept_b, removed, leg_cells, res), too_long)
+        # an object whose legs stand on an unchanged object of its class in the other session is that
+        # object, seen more fully by one session (two legs of a chair in A, four in B)
+        new_ids = {id(o) for o in new}
         gone, rests_a = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long, leg_cells,
                                      st.min_fit_legs)
         gone_ids = {id(o) for o in gone}

@@ -1617,7 +1617,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                 if id(o) in changed_ids or not o.cells.shape[0] or not too_long(o):
                     continue
                 part = o.cells[changed_cells[o.cells[:, 0], o.cells[:, 1]]]
-                if _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
+                # (two cells a leg at least: three stray cells of a pot's rim are no table)
+                if part.shape[0] >= 2 * st.min_fit_legs and \
+                        _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
                     rests.append((part, o.src.class_name))
         for ob in objs_a + objs_b:
             if ob.cells.size:

@@ -1207,10 +1207,8 @@ def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool
     grazing past cleared, or that beams ended on too seldom). A chair pushed back by its legs' spacing
     puts two legs where two stood, and two new ones beside them."""
     cells = o.cells
-    groups = _clusters(cells.astype(np.float64), 1.5)
-    sizes = np.bincount(groups)
-    legs = np.flatnonzero(sizes <= leg_cells)
-    if legs.size < 3 or sizes[legs].sum() < 0.8 * cells.shape[0]:
+    groups, legs = _leg_groups(cells, leg_cells)
+    if legs.size < 3:
         return False  # (furniture of legs alone: a couch's faces in pieces are no legs)
     held = np.intersect1d(np.unique(groups[kept[cells[:, 0], cells[:, 1]]]), legs).size
     if held < 2 or held < 0.5 * legs.size:
@@ -1218,14 +1216,23 @@ def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool
     return _cells_near(other_changed, cells, max(*o.src.size, 2 * res) / res).shape[0] < 2
 
 
+def _leg_groups(cells: NDArray[np.intp], leg_cells: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Per cell (row, col) its 8-connected group, and the groups that are legs (at most ``leg_cells``
+    cells each); no legs unless they hold 80 % of the cells (furniture of legs alone, not a face)."""
+    if not cells.shape[0]:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    groups = _clusters(cells.astype(np.float64), 1.5)
+    sizes = np.bincount(groups)
+    legs = np.flatnonzero(sizes <= leg_cells)
+    if sizes[legs].sum() < 0.8 * cells.shape[0]:
+        legs = legs[:0]
+    return groups, legs
+
+
 def _on_legs(o: _Obj, leg_cells: int) -> bool:
-    """Whether the object's cells are legs (two or more groups of a leg's size at most, holding 80 % of
+    """Whether the object's cells are legs (two groups or more of a leg's size at most, holding 80 % of
     them): a chair or a table at LiDAR height, not a couch's face."""
-    if o.cells.shape[0] < 2:
-        return False
-    sizes = np.bincount(_clusters(o.cells.astype(np.float64), 1.5))
-    legs = sizes <= leg_cells
-    return int(legs.sum()) >= 2 and int(sizes[legs].sum()) >= 0.8 * o.cells.shape[0]
+    return _leg_groups(o.cells, leg_cells)[1].size >= 2
 
 
 def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Obj]:

@@ -1580,3 +1580,27 @@ def test_the_other_sessions_wall_by_an_objects_legs_does_not_keep_them_from_fitt
     pairs, _, _ = _unlabelled_partners([chair], [moved], spec, ChangeSettings(), True, other)
     assert len(pairs) == 1 and pairs[0][0] is chair
     assert np.array_equal(np.unique(pairs[0][1].cells, axis=0), np.unique(moved, axis=0))
+
+
+@pytest.mark.parametrize("turned_deg", [0.0, 20.0])
+def test_a_table_longer_than_its_class_that_its_builds_split_in_two_moved_is_one_move_at_its_middle(turned_deg):
+    # a 2.7 m table (its class's objects are 2 m long): each build listed its two ends as two tables.
+    # Both ends moved by one motion; each end alone is fitted turned half way round or not (a pair of
+    # legs looks alike either way), and each end's own place is 1.3 m from the table's middle
+    a, b = Room(), Room()
+    here, there = (4.0, 4.0), (4.4, 4.3)
+    yaw = math.radians(turned_deg)
+    for room, c, heading in ((a, here, math.radians(90.0)), (b, there, math.radians(90.0) + yaw)):
+        table = ("dining table", c, (2.7, 0.45), heading)
+        room.objects += [table, table]
+        room.listed_legs.update({0: (0, 1), 1: (2, 3)})
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    assert counts["object_disappeared"] == counts["object_appeared"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert np.linalg.norm(_world(mv.from_xy) - here) < 0.05
+    assert np.linalg.norm(_world(mv.to_xy) - there) < 0.05
+    assert mv.displacement_m == pytest.approx(0.5, abs=0.05)
+    if turned_deg:
+        assert mv.rotation_deg == pytest.approx(turned_deg, abs=3.0)

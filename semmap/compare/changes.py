@@ -622,6 +622,75 @@ def _cells_xy(cells: NDArray[np.intp], spec: GridSpec) -> NDArray[np.float64]:
                      spec.origin_y + (cells[:, 0] + 0.5) * spec.resolution], axis=1).astype(np.float64)
 
 
+@dataclass
+class _MovePart:
+    """A moved object's pair of objects, fitted: its class (None: unlabelled), where it was and went
+    (A's frame), the motion, what both sessions saw of it in A's place (points, m), the cells it holds in
+    B, whether its turn is measurable, and whether it is round (its centres are its circle's)."""
+
+    class_name: str | None
+    from_c: NDArray[np.float64]
+    to_c: NDArray[np.float64]
+    motion: NDArray[np.float64]
+    both: NDArray[np.float64]
+    cells: int
+    turnable: bool
+    round_obj: bool
+
+
+def _half_turns(part: _MovePart) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A part's motion, and the one that takes its place to the same place turned by a further half
+    turn: a pair of legs, a box, fits itself either way, and the fit of each part alone may pick
+    either."""
+    yaw = float(wrap_angle(part.motion[2] + math.pi))
+    c, s_ = math.cos(yaw), math.sin(yaw)
+    t = part.to_c - np.array([[c, -s_], [s_, c]]) @ part.from_c
+    return part.motion, np.array([t[0], t[1], yaw])
+
+
+def _same_motion(mp: NDArray[np.float64], mq: NDArray[np.float64], p: _MovePart, q: _MovePart, res: float) -> bool:
+    """Two parts moved by one motion: turns within 3°, and each one's place carried by the other's
+    motion lands within two cells of where it went."""
+    return abs(float(wrap_angle(mp[2] - mq[2]))) <= math.radians(3.0) and \
+        float(np.linalg.norm(se2_apply(mp, q.from_c[None])[0] - q.to_c)) <= 2 * res and \
+        float(np.linalg.norm(se2_apply(mq, p.from_c[None])[0] - p.to_c)) <= 2 * res
+
+
+def _one_motion(parts: list[_MovePart], size_of: Callable[[str], float], res: float) -> list[_MovePart]:
+    """Moves of parts of one object joined: two moves of one class by the same motion (each one's
+    place carried by the other's motion lands within two cells of where it went, turns within 3°)
+    whose parts together are no longer than 1.5 times the class's objects are one object, which its
+    builds split (a 2.7 m table is two objects of a class 2 m long). Its place is the middle of the
+    box around both parts. Two chairs side by side moved alike stay two: together they are twice a
+    chair's length."""
+    out = list(parts)
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                p, q = out[i], out[j]
+                if p.class_name is None or p.class_name != q.class_name or p.round_obj or q.round_obj:
+                    continue
+                motion = next((mp for mp in _half_turns(p) for mq in _half_turns(q) if _same_motion(mp, mq, p, q, res)),
+                              None)
+                if motion is None:
+                    continue
+                both = np.concatenate([p.both, q.both])
+                rect = cv2.minAreaRect(both.astype(np.float32))
+                if max(rect[1]) > 1.5 * float(size_of(p.class_name)) + res:
+                    continue
+                from_c = np.asarray(rect[0], np.float64)
+                out[i] = _MovePart(p.class_name, from_c, se2_apply(motion, from_c[None])[0], motion, both,
+                                   p.cells + q.cells, p.turnable or q.turnable, False)
+                del out[j]
+                merged = True
+                break
+            if merged:
+                break
+    return out
+
+
 def _box_turn(yaw_a: float, yaw_b: float) -> float:
     """The turn between two boxes' headings, taken the short way: a box looks the same turned by 180°."""
     d = float(wrap_angle(yaw_b - yaw_a))
@@ -1794,6 +1863,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # alone slides along the other session's couch) when it touches the object and the two stay
         # within the object's length
         loose_a, loose_b = removed & ~semi_a & ~lo.dyn_a, added & ~semi_b & ~lo.dyn_b
+        move_parts: list[_MovePart] = []
         for oa, ob in moved:
             elongated = _elongated(oa) and _elongated(ob)
             cells_a = _with_touching(oa, loose_a, spec, sizes.size_of)
@@ -1810,10 +1880,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             # move, grouped with the object) say nothing of where it went; keep three or more
             keep_a = ~near_b[cells_a[:, 0], cells_a[:, 1]]
             keep_b = ~near_a[cells_b[:, 0], cells_b[:, 1]]
-            if keep_a.sum() >= 3 and keep_b.sum() >= 3:
-                from_c = _reference_point(src_xy[keep_a], dst_xy[keep_b], motion)
-            else:
-                from_c = _reference_point(src_xy, dst_xy, motion)
+            ref_a, ref_b = (src_xy[keep_a], dst_xy[keep_b]) if keep_a.sum() >= 3 and keep_b.sum() >= 3 else \
+                (src_xy, dst_xy)
+            from_c = _reference_point(ref_a, ref_b, motion)
             new_c = se2_apply(motion, from_c[None])[0]
             # a box looks the same turned half way round: the turn is the short one, within ±90°
             turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0
@@ -1838,13 +1907,20 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                         n = int(np.count_nonzero(faced))
                         changes.append(Change(kind, (float(at[0]), float(at[1])), n * res * res, n, o.src.class_name))
                 continue
-            n = int(ob.cells.shape[0])
-            changes.append(Change("object_moved", (float(new_c[0]), float(new_c[1])), n * res * res, n,
-                                  oa.src.class_name or None, (float(from_c[0]), float(from_c[1])),
-                                  (float(new_c[0]), float(new_c[1])), disp,
-                                  turn if elongated and not round_obj else None))  # None: not measurable
+            both = np.concatenate([ref_a, se2_apply(se2_inverse(motion), ref_b)])
+            move_parts.append(_MovePart(oa.src.class_name or None, from_c, new_c, motion, both,
+                                        int(ob.cells.shape[0]), elongated and not round_obj, round_obj))
             mark(*with_own_legs(ob, False, zone), added, lo.free_a, 1)
             mark(*with_own_legs(oa, True, zone), removed, lo.free_b, 2)
+        # parts of one object its builds split in two (a table longer than its class's objects) moved
+        # by one motion: one move
+        for part in _one_motion(move_parts, sizes.size_of, res):
+            n = part.cells
+            turn = math.degrees(_box_turn(0.0, float(part.motion[2]))) if part.turnable else None
+            changes.append(Change("object_moved", (float(part.to_c[0]), float(part.to_c[1])), n * res * res, n,
+                                  part.class_name, (float(part.from_c[0]), float(part.from_c[1])),
+                                  (float(part.to_c[0]), float(part.to_c[1])),
+                                  float(np.linalg.norm(part.to_c - part.from_c)), turn))  # None: not measurable
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
             in_a = kind == "object_disappeared"
             for i in idx:

@@ -1914,13 +1914,13 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             mark(*with_own_legs(oa, True, zone), removed, lo.free_b, 2)
         # parts of one object its builds split in two (a table longer than its class's objects) moved
         # by one motion: one move
-        for part in _one_motion(move_parts, sizes.size_of, res):
-            n = part.cells
-            turn = math.degrees(_box_turn(0.0, float(part.motion[2]))) if part.turnable else None
-            changes.append(Change("object_moved", (float(part.to_c[0]), float(part.to_c[1])), n * res * res, n,
-                                  part.class_name, (float(part.from_c[0]), float(part.from_c[1])),
-                                  (float(part.to_c[0]), float(part.to_c[1])),
-                                  float(np.linalg.norm(part.to_c - part.from_c)), turn))  # None: not measurable
+        for mp in _one_motion(move_parts, sizes.size_of, res):
+            n = mp.cells
+            turn_deg = math.degrees(_box_turn(0.0, float(mp.motion[2]))) if mp.turnable else None
+            changes.append(Change("object_moved", (float(mp.to_c[0]), float(mp.to_c[1])), n * res * res, n,
+                                  mp.class_name, (float(mp.from_c[0]), float(mp.from_c[1])),
+                                  (float(mp.to_c[0]), float(mp.to_c[1])),
+                                  float(np.linalg.norm(mp.to_c - mp.from_c)), turn_deg))  # None: not measurable
         for kind, idx, objs in (("object_disappeared", only_a, gone), ("object_appeared", only_b, new)):
             in_a = kind == "object_disappeared"
             for i in idx:

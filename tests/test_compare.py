@@ -1604,3 +1604,23 @@ def test_a_table_longer_than_its_class_that_its_builds_split_in_two_moved_is_one
     assert mv.displacement_m == pytest.approx(0.5, abs=0.05)
     if turned_deg:
         assert mv.rotation_deg == pytest.approx(turned_deg, abs=3.0)
+
+
+def test_a_table_moved_whose_builds_grouped_with_it_a_wall_face_its_labels_bled_onto_is_a_move():
+    # both builds put in the table's object a run of the wall's face that the camera's labels bled
+    # onto, more cells than the table's four thin legs. Laid on each other those cells say the table
+    # stayed; its legs, three or more on each side that fit each other leg on leg, moved
+    a, b = Room(), Room()
+    a.walls.append((0.0, 4.0, 10.0, 4.0))
+    b.walls.append((0.0, 4.0, 10.0, 4.0))
+    face = [(3.0 + 0.05 * k, 4.0) for k in range(14)]
+    for room, c in ((a, (4.0, 5.2)), (b, (4.2, 6.0))):
+        room.leg_half = 0.0
+        room.objects.append(("dining table", c, (1.6, 0.6), 0.0))
+        room.grouped_legs[0] = face
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1, counts
+    mv = r.of_type("object_moved")[0]
+    assert np.linalg.norm(_world(mv.to_xy) - (4.2, 6.0)) < 0.1
+    assert mv.displacement_m == pytest.approx(math.hypot(0.2, 0.8), abs=0.05)

@@ -1894,6 +1894,23 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             if arc_a is not None and arc_b is not None and _same_arc(arc_a[1], arc_b[1]):
                 from_c, new_c, turn, round_obj = arc_a[0], arc_b[0], 0.0, True
             disp = float(np.linalg.norm(new_c - from_c))
+            if disp < st.still_m and abs(turn) < st.still_deg and not round_obj:
+                # a fit that says it stayed may have laid cells that stayed on each other (a wall's face
+                # its builds' labels bled onto, grouped with a table that moved): the changed cells, when
+                # three legs or more of each side fit each other leg on leg, moved
+                part_a = cells_a[removed[cells_a[:, 0], cells_a[:, 1]]]
+                part_b = cells_b[added[cells_b[:, 0], cells_b[:, 1]]]
+                if min(_legs_of_its_own(part_a.astype(np.float64), leg_cells),
+                       _legs_of_its_own(part_b.astype(np.float64), leg_cells)) >= st.min_fit_legs:
+                    pa_xy, pb_xy = _cells_xy(part_a, spec), _cells_xy(part_b, spec)
+                    q, legs, _ = _shape_fit(pa_xy, pb_xy, turns, res)
+                    if q >= st.unlabelled_fit and legs >= st.min_fit_legs:
+                        motion = _fit_motion(pa_xy, pb_xy, turns, res, contradicts, fa, fb, contradicts_back)
+                        ref_a, ref_b = pa_xy, pb_xy
+                        from_c = _reference_point(ref_a, ref_b, motion)
+                        new_c = se2_apply(motion, from_c[None])[0]
+                        turn = math.degrees(_box_turn(0.0, float(motion[2]))) if elongated else 0.0
+                        disp = float(np.linalg.norm(new_c - from_c))
             zone = _dilate(_cell_mask(oa, spec) | _cell_mask(ob, spec), near)
             if disp < st.still_m and abs(turn) < st.still_deg:
                 # it did not move, but a face of it may stand where the other session saw floor

@@ -1624,3 +1624,22 @@ def test_a_table_moved_whose_builds_grouped_with_it_a_wall_face_its_labels_bled_
     mv = r.of_type("object_moved")[0]
     assert np.linalg.norm(_world(mv.to_xy) - (4.2, 6.0)) < 0.1
     assert mv.displacement_m == pytest.approx(math.hypot(0.2, 0.8), abs=0.05)
+
+
+def test_a_new_cabinet_its_build_joined_to_the_wall_its_labels_bled_onto_is_added():
+    # B's camera labelled a new cabinet against the east wall, and the labels bled onto 2 m of the
+    # wall: one object, most of whose cells are the wall A saw too. Its face on A's floor is new
+    # (a bed stood beside it in both: an object of its class near it, so the wall is not set aside as
+    # the wall behind a table's back legs)
+    a, b = Room(), Room()
+    for room in (a, b):
+        room.objects.append(("bed", (8.8, 5.2), (2.2, 1.0), 0.0))
+    b.faces.append(("bed", [(10.0, 2.5, 10.0, 4.5), (9.3, 3.5, 9.95, 3.5), (9.3, 3.5, 9.3, 3.8)]))
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_appeared"] == 1 and counts["object_disappeared"] == counts["object_moved"] == 0, counts
+    assert np.linalg.norm(_world(r.of_type("object_appeared")[0].centroid) - (9.6, 3.6)) < 0.2
+    added = _mask_world(r, 1)
+    front = (np.abs(added[:, 1] - 3.5) < 0.06) & (added[:, 0] > 9.3) & (added[:, 0] < 9.95)
+    assert front.sum() >= 0.8 * 0.65 / RES  # the cabinet's front is in the mask
+    assert (added[:, 0] > 9.96).sum() == 0  # the wall is not

@@ -1687,16 +1687,26 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # an object too long for its class (more than one, grouped by its build) most of whose cells did
         # not change may hold one that did: its changed cells, when they are three legs or more of their
         # own (a new table its build grouped with the one beside it that stayed)
-        for objs_side, changed_ids, changed_cells, rests in ((objs_a, gone_ids, gone_cells, rests_a),
-                                                             (objs_b, {id(o) for o in new}, new_cells, rests_b)):
+        # Nor is one whose labels bled onto the wall beside it, most of whose cells are that wall (on the
+        # other session's obstacles in no object): a face of it half a metre long or more that changed
+        # is an object of its own (a new cabinet its build joined to the wall its labels bled onto)
+        for objs_side, changed_ids, changed_cells, rests, other_wall, face_cells in (
+                (objs_a, gone_ids, gone_cells, rests_a, wall_b, removed),
+                (objs_b, {id(o) for o in new}, new_cells, rests_b, wall_a, added)):
             for o in objs_side:
-                if id(o) in changed_ids or not o.cells.shape[0] or not too_long(o):
+                if id(o) in changed_ids or not o.cells.shape[0]:
                     continue
-                part = o.cells[changed_cells[o.cells[:, 0], o.cells[:, 1]]]
-                # (two cells a leg at least: three stray cells of a pot's rim are no table)
-                if part.shape[0] >= 2 * st.min_fit_legs and \
-                        _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
-                    rests.append((part, o.src.class_name))
+                on = changed_cells[o.cells[:, 0], o.cells[:, 1]]
+                part = o.cells[on]
+                if too_long(o):
+                    # (two cells a leg at least: three stray cells of a pot's rim are no table)
+                    if part.shape[0] >= 2 * st.min_fit_legs and \
+                            _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
+                        rests.append((part, o.src.class_name))
+                elif part.shape[0] and float(other_wall[o.cells[~on, 0], o.cells[~on, 1]].mean()) >= 0.5:
+                    faced = _long_pieces(o, face_cells, spec, 2 * st.face_m)
+                    if faced.any():
+                        rests.append((np.argwhere(faced), o.src.class_name))
         for ob in objs_a + objs_b:
             if ob.cells.size:
                 on_objects[ob.cells[:, 0], ob.cells[:, 1]] = True

@@ -1703,7 +1703,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                     if part.shape[0] >= 2 * st.min_fit_legs and \
                             _legs_of_its_own(part.astype(np.float64), leg_cells) >= st.min_fit_legs:
                         rests.append((part, o.src.class_name))
-                elif part.shape[0] and float(other_wall[o.cells[~on, 0], o.cells[~on, 1]].mean()) >= 0.5:
+                elif part.shape[0] and (~on).any() and \
+                        float(other_wall[o.cells[~on, 0], o.cells[~on, 1]].mean()) >= 0.5:
                     faced = _long_pieces(o, face_cells, spec, 2 * st.face_m)
                     if faced.any():
                         rests.append((np.argwhere(faced), o.src.class_name))

@@ -1643,3 +1643,14 @@ def test_a_new_cabinet_its_build_joined_to_the_wall_its_labels_bled_onto_is_adde
     front = (np.abs(added[:, 1] - 3.5) < 0.06) & (added[:, 0] > 9.3) & (added[:, 0] < 9.95)
     assert front.sum() >= 0.8 * 0.65 / RES  # the cabinet's front is in the mask
     assert (added[:, 0] > 9.96).sum() == 0  # the wall is not
+
+
+def test_people_evidence_in_a_crowd_of_blobs_completes_no_chair_with_two_kept_legs():
+    # the same two legs and two dropped blobs at a chair's corners as above, but amid more blobs of
+    # people evidence (where people walked to and fro, some rectangle's corners always turn up): people
+    a, b = Room(), Room()
+    for x in (4.805, 5.195):
+        b.walls.append((x, 3.805, x, 3.805))
+    b.dropped += [(4.805, 4.195), (5.195, 4.195), (4.55, 4.3), (5.0, 4.5), (5.45, 4.3)]  # (0.3 m from the legs)
+    r = _diff(a, b)
+    assert r.counts()["static_added"] == 0 and _mask_world(r, 1).shape[0] == 0, r.counts()

@@ -1378,15 +1378,17 @@ def _component_changes(mask: NDArray[np.bool_], spec: GridSpec, kind: str, group
 
 def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: float, min_legs: int,
               strong: NDArray[np.bool_] | None = None, rect_cells: float = 0.0,
-              corners_only: NDArray[np.bool_] | None = None
-              ) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
+              corners_only: NDArray[np.bool_] | None = None, crowd: NDArray[np.bool_] | None = None,
+              crowd_cells: float = 2.0) -> tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]]:
     """Of ``cells`` (pieces each too small to be a change), the sets of ``min_legs`` blobs or more
     whose centres are joined within ``span_cells``, as :func:`_component_changes` gives pieces; and,
     with ``rect_cells``, first, sets of four at the corners of a rectangle whose sides are at most that
     long (:func:`_rectangles`: a table's or a bed's legs, further apart than a chair's).
     With ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
     people may be a person's two. Blobs of ``corners_only`` alone may complete a rectangle (as blobs
-    not strong), never a set joined by span: legs the session's cleaning dropped as a person's."""
+    not strong), never a set joined by span: legs the session's cleaning dropped as a person's; not
+    where ``crowd`` (the session's people evidence, default ``corners_only``) has more than one blob
+    beyond those it uses within ``crowd_cells`` of the rectangle's corners' circle."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     if corners_only is not None and rect_cells > 0:
@@ -1410,12 +1412,23 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
         is_strong &= ~corner_only
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
     k = 0
+    crowd_mask = crowd if crowd is not None else corners_only
     if rect_cells > 0:  # (first: four corners of a rectangle are the stronger shape)
         for quad in _rectangles(centres, rect_cells, _LEG_RECT_SHORTEST / spec.resolution, 2.0):
             idx = np.asarray(quad, np.intp)
-            if int(is_strong[idx].sum()) >= 2:
-                k += 1
-                group[1:][idx] = k
+            if int(is_strong[idx].sum()) < 2:
+                continue
+            used = int(corner_only[idx].sum())
+            if used and crowd_mask is not None:
+                # (blobs of people evidence in a crowd of them are people: where people walked to and fro,
+                # four corners of some rectangle always turn up; a chair's two legs taken for a person's
+                # have at most one more such blob by them)
+                mid = centres[idx].mean(axis=0)
+                reach = float(np.linalg.norm(centres[idx] - mid, axis=1).max()) + crowd_cells
+                if _blobs_within(crowd_mask, mid, reach) > used + 1:
+                    continue
+            k += 1
+            group[1:][idx] = k
     left = np.flatnonzero((group[1:] == 0) & ~corner_only)
     if left.size >= min_legs:
         roots = _clusters(centres[left], span_cells)
@@ -1437,6 +1450,21 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
                          float(spec.origin_y + (sum_r[k] / size[k] + 0.5) * spec.resolution)),
                   float(size[k] * area), int(size[k])) for k in range(1, m)]
     return out, lab > 0, lab, list(range(1, m))
+
+
+def _blobs_within(mask: NDArray[np.bool_], centre: NDArray[np.float64], reach: float) -> int:
+    """How many blobs (8-connected) of ``mask`` have their centre within ``reach`` cells of ``centre``
+    (row, col)."""
+    r = int(math.ceil(reach)) + 1
+    h, w = mask.shape
+    r0, c0 = max(int(centre[0]) - r, 0), max(int(centre[1]) - r, 0)
+    r1, c1 = min(int(centre[0]) + r + 1, h), min(int(centre[1]) + r + 1, w)
+    lab, n = ndimage.label(mask[r0:r1, c0:c1], structure=np.ones((3, 3), bool))
+    if n == 0:
+        return 0
+    mids = np.asarray(ndimage.center_of_mass(np.ones_like(lab), lab, range(1, n + 1)), np.float64).reshape(-1, 2)
+    mids += (r0, c0)
+    return int(np.count_nonzero(np.linalg.norm(mids - centre, axis=1) <= reach))
 
 
 def _void_people(changed: NDArray[np.bool_], zone: NDArray[np.bool_], on_people: NDArray[np.bool_],
@@ -2009,7 +2037,8 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         lone_legs = np.zeros_like(kept)
         lone_legs[rk[lone], ck[lone]] = True
         f2, k2, l2, i2 = _leg_sets((cells & ~kept) | voided | by_wall | lone_legs, spec, kind, st.leg_span_m / res,
-                                   st.min_fit_legs, ~people & ~by_wall, st.leg_rect_m / res, dropped)
+                                   st.min_fit_legs, ~people & ~by_wall, st.leg_rect_m / res, dropped, own_dyn,
+                                   st.people_margin_m / res)
         if i2:
             taken_in = set(np.unique(labels[(l2 > 0) & lone_legs]).tolist())
             found = [c for c, k in zip(found, ids, strict=True) if k not in taken_in]

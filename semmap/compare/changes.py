@@ -638,6 +638,26 @@ class _MovePart:
     round_obj: bool
 
 
+def _join_pairs(items: list[Any], join: Callable[[Any, Any], Any]) -> list[Any]:
+    """``items`` with pairs joined while any two join: ``join(a, b)`` gives the one item both are,
+    or None. The first pair (in order) that joins is replaced by its join, and the search starts again."""
+    out = list(items)
+    joined = True
+    while joined:
+        joined = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                both = join(out[i], out[j])
+                if both is not None:
+                    out[i] = both
+                    del out[j]
+                    joined = True
+                    break
+            if joined:
+                break
+    return out
+
+
 def _half_turns(part: _MovePart) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A part's motion, and the one that takes its place to the same place turned by a further half
     turn: a pair of legs, a box, fits itself either way, and the fit of each part alone may pick
@@ -663,32 +683,21 @@ def _one_motion(parts: list[_MovePart], size_of: Callable[[str], float], res: fl
     builds split (a 2.7 m table is two objects of a class 2 m long). Its place is the middle of the
     box around both parts. Two chairs side by side moved alike stay two: together they are twice a
     chair's length."""
-    out = list(parts)
-    merged = True
-    while merged:
-        merged = False
-        for i in range(len(out)):
-            for j in range(i + 1, len(out)):
-                p, q = out[i], out[j]
-                if p.class_name is None or p.class_name != q.class_name or p.round_obj or q.round_obj:
-                    continue
-                motion = next((mp for mp in _half_turns(p) for mq in _half_turns(q) if _same_motion(mp, mq, p, q, res)),
-                              None)
-                if motion is None:
-                    continue
-                both = np.concatenate([p.both, q.both])
-                rect = cv2.minAreaRect(both.astype(np.float32))
-                if max(rect[1]) > 1.5 * float(size_of(p.class_name)) + res:
-                    continue
-                from_c = np.asarray(rect[0], np.float64)
-                out[i] = _MovePart(p.class_name, from_c, se2_apply(motion, from_c[None])[0], motion, both,
-                                   p.cells + q.cells, p.turnable or q.turnable, False)
-                del out[j]
-                merged = True
-                break
-            if merged:
-                break
-    return out
+    def join(p: _MovePart, q: _MovePart) -> _MovePart | None:
+        if p.class_name is None or p.class_name != q.class_name or p.round_obj or q.round_obj:
+            return None
+        motion = next((mp for mp in _half_turns(p) for mq in _half_turns(q) if _same_motion(mp, mq, p, q, res)), None)
+        if motion is None:
+            return None
+        both = np.concatenate([p.both, q.both])
+        rect = cv2.minAreaRect(both.astype(np.float32))
+        if max(rect[1]) > 1.5 * float(size_of(p.class_name)) + res:
+            return None
+        from_c = np.asarray(rect[0], np.float64)
+        return _MovePart(p.class_name, from_c, se2_apply(motion, from_c[None])[0], motion, both, p.cells + q.cells,
+                         p.turnable or q.turnable, False)
+
+    return _join_pairs(parts, join)
 
 
 def _box_turn(yaw_a: float, yaw_b: float) -> float:
@@ -1308,30 +1317,20 @@ def _merge_fragments(objs: list[_Obj], size_of: Any, spec: GridSpec) -> list[_Ob
     """Join pieces of one object: a build may list a bed as two objects where the other found one.
     Pieces of one class merge while the smallest box around the whole is no longer than that class's
     typical length."""
-    objs = list(objs)
-    merged = True
-    while merged:
-        merged = False
-        for i in range(len(objs)):
-            for j in range(i + 1, len(objs)):
-                a, b = objs[i], objs[j]
-                if a.src.class_name != b.src.class_name:
-                    continue
-                cells = np.concatenate([a.cells, b.cells])
-                xy = _cells_xy(cells, spec)
-                # the long side of the smallest box around both (a square chair's diagonal is longer
-                # than its typical length, its side is not)
-                _, (w, h), _ = cv2.minAreaRect(xy.astype(np.float32))
-                extent = float(max(w, h))
-                if extent <= 1.1 * size_of(a.src.class_name) + spec.resolution:
-                    lo_xy, hi_xy = xy.min(axis=0), xy.max(axis=0)
-                    objs[i] = _Obj(a.src, 0.5 * (lo_xy + hi_xy), a.yaw, np.zeros((0, 2)), cells)
-                    del objs[j]
-                    merged = True
-                    break
-            if merged:
-                break
-    return objs
+    def join(a: _Obj, b: _Obj) -> _Obj | None:
+        if a.src.class_name != b.src.class_name:
+            return None
+        cells = np.concatenate([a.cells, b.cells])
+        xy = _cells_xy(cells, spec)
+        # the long side of the smallest box around both (a square chair's diagonal is longer than its
+        # typical length, its side is not)
+        _, (w, h), _ = cv2.minAreaRect(xy.astype(np.float32))
+        if float(max(w, h)) > 1.1 * size_of(a.src.class_name) + spec.resolution:
+            return None
+        lo_xy, hi_xy = xy.min(axis=0), xy.max(axis=0)
+        return _Obj(a.src, 0.5 * (lo_xy + hi_xy), a.yaw, np.zeros((0, 2)), cells)
+
+    return _join_pairs(objs, join)
 
 
 def _merge_legs(objs: list[_Obj], leg_cells: int, size_of: Any, spec: GridSpec) -> list[_Obj]:

@@ -1386,8 +1386,8 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
     With ``strong`` (where no people were), a set also needs two of its blobs to touch it: two legs by
     people may be a person's two. Blobs of ``corners_only`` alone may complete a rectangle (as blobs
     not strong), never a set joined by span: legs the session's cleaning dropped as a person's; not
-    where ``crowd`` (the session's people evidence, default ``corners_only``) has more than one blob
-    beyond those it uses within ``crowd_cells`` of the rectangle's corners' circle."""
+    where ``crowd`` (the session's people evidence) has more than one blob beyond those it uses within
+    ``crowd_cells`` of the rectangle's corners' circle."""
     none: tuple[list[Change], NDArray[np.bool_], NDArray[np.int32], list[int]] = (
         [], np.zeros_like(cells), np.zeros(cells.shape, np.int32), [])
     if corners_only is not None and rect_cells > 0:
@@ -1411,20 +1411,19 @@ def _leg_sets(cells: NDArray[np.bool_], spec: GridSpec, kind: str, span_cells: f
         is_strong &= ~corner_only
     group = np.zeros(n + 1, np.int32)  # blob label -> set id (0: none)
     k = 0
-    crowd_mask = crowd if crowd is not None else corners_only
     if rect_cells > 0:  # (first: four corners of a rectangle are the stronger shape)
         for quad in _rectangles(centres, rect_cells, _LEG_RECT_SHORTEST / spec.resolution, 2.0):
             idx = np.asarray(quad, np.intp)
             if int(is_strong[idx].sum()) < 2:
                 continue
             used = int(corner_only[idx].sum())
-            if used and crowd_mask is not None:
+            if used and crowd is not None:
                 # (blobs of people evidence in a crowd of them are people: where people walked to and fro,
                 # four corners of some rectangle always turn up; a chair's two legs taken for a person's
                 # have at most one more such blob by them)
                 mid = centres[idx].mean(axis=0)
                 reach = float(np.linalg.norm(centres[idx] - mid, axis=1).max()) + crowd_cells
-                if _blobs_within(crowd_mask, mid, reach) > used + 1:
+                if _blobs_within(crowd, mid, reach) > used + 1:
                     continue
             k += 1
             group[1:][idx] = k

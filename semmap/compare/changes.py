@@ -42,7 +42,7 @@ from ..geometry import dilate_mask, disk_kernel, se2_apply, se2_inverse, wrap_an
 from ..grid import SemiStaticObject
 from ..records import GridSpec
 from ..register.metrics import align_se2
-from .session import Session
+from .session import _LEG_M, Session
 
 __all__ = [
     "CHANGE_TYPES",
@@ -61,7 +61,7 @@ CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appear
 _LEG_RECT_SHORTEST = 0.25
 
 # bits of the code image both sessions are resampled through
-_OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE, _FIRM = 1, 2, 4, 8, 16, 32, 64
+_OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE, _FIRM, _LAB = 1, 2, 4, 8, 16, 32, 64, 128
 
 
 @dataclass(frozen=True)
@@ -169,6 +169,9 @@ class LaidOut:
     #: weak obstacles (see :class:`Session`): occupied cells fewer than three returns ended in
     weak_a: NDArray[np.bool_] | None = None
     weak_b: NDArray[np.bool_] | None = None
+    #: cells the camera painted (see :class:`Session`)
+    lab_a: NDArray[np.bool_] | None = None
+    lab_b: NDArray[np.bool_] | None = None
 
 
 def _code(s: Session) -> NDArray[np.uint8]:
@@ -183,6 +186,8 @@ def _code(s: Session) -> NDArray[np.uint8]:
         c[s.glimpsed] |= _GLIMPSE
     if s.weak is not None:  # carried as its opposite: a cell two of B's fall in is firm if either is
         c[s.occupied & ~s.weak] |= _FIRM
+    if s.labelled is not None:
+        c[s.labelled] |= _LAB
     return c
 
 
@@ -229,7 +234,7 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
         c = np.floor((xy[:, 0] - spec.origin_x) / res).astype(np.intp)
         r = np.floor((xy[:, 1] - spec.origin_y) / res).astype(np.intp)
         ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
-        bits_b = (raw_b[rows_b, cols_b] & solid)[ok]
+        bits_b = (raw_b[rows_b, cols_b] & (solid | _LAB))[ok]
         np.bitwise_or.at(code_b, (r[ok], c[ok]), bits_b)
         code_b[r[ok], c[ok]] &= ~np.uint8(_FREE)
 
@@ -251,7 +256,9 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
                    bits(code_a, _GLIMPSE) if a.glimpsed is not None else None,
                    bits(code_b, _GLIMPSE) if b.glimpsed is not None else None,
                    bits(code_a, _OCC) & ~bits(code_a, _FIRM) if a.weak is not None else None,
-                   bits(code_b, _OCC) & ~bits(code_b, _FIRM) if b.weak is not None else None)
+                   bits(code_b, _OCC) & ~bits(code_b, _FIRM) if b.weak is not None else None,
+                   bits(code_a, _LAB) if a.labelled is not None else None,
+                   bits(code_b, _LAB) if b.labelled is not None else None)
 
 
 _disk = disk_kernel
@@ -1655,7 +1662,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     changes: list[Change] = []
     mask = np.zeros(spec.shape, np.uint8)
     left_out = {"objects_unobserved_in_b": 0, "objects_unobserved_in_a": 0, "cells_near_people": 0,
-                "wall_faces": 0, "hidden_faces": 0, "weak_obstacles": 0}
+                "wall_faces": 0, "hidden_faces": 0, "weak_obstacles": 0, "people_stances": 0}
     left_out["cells_near_people"] = int(((lo.occ_b & lo.free_a) | (lo.occ_a & lo.free_b))[people].sum())
 
     # movable objects: an object whose cells the other session saw free is gone (or new); gone and
@@ -2065,6 +2072,12 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
                     if not _in_doorway(labels, slices, k, other_walls, st.door_min_m / res)}
             left_out["weak_obstacles"] += len(weak)
             faces |= weak
+        # two leg-sized blobs a stride apart, alone on the floor, that no camera saw: a person who stood
+        # there while the robot passed (cleaning keeps what it has no label for), not an obstacle
+        own_lab = lo.lab_a if in_a else lo.lab_b
+        stances = _stances(labels, slices, [k for k in ids if k not in faces], own_occ, own_lab, res)
+        left_out["people_stances"] += len(stances)
+        faces |= stances
         # a change reaches on, through its own obstacle cells the other session saw free, up to the
         # tolerance into the band by the other's obstacles: the end of a cabinet's face where it meets
         # the wall it stands against
@@ -2109,6 +2122,50 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
 #: two false pieces (B's corridor wall seen edge-on beyond a door, 0.15 m off A's wall) held 0 and 36 %
 #: firm cells; the 60 other pieces 71 % or more (the least: a closed door seen from across a room)
 _WEAK_SHARE = 0.5
+
+
+#: a person's stance at LiDAR height: two legs, each a blob of at least ``_STANCE_LEG_CELLS`` cells no
+#: wider than ``_LEG_M``, their centres at most ``_STANCE_M`` apart, nothing else within ``_STANCE_CLEAR_M``
+#: but at most one stray cell or two (a chair's or a table's legs, 3-7 cm, are a cell or two each)
+_STANCE_LEG_CELLS = 3
+_STANCE_M = 0.45
+_STANCE_CLEAR_M = 0.3
+
+
+def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_occ: NDArray[np.bool_],
+             own_lab: NDArray[np.bool_] | None, res: float) -> set[int]:
+    """The pieces (label ids) that are a person's stance (see ``_STANCE_M``) in their own map, with no
+    cell of it or near it painted by a camera."""
+    out = set()
+    pad = int(math.ceil(_STANCE_CLEAR_M / res))
+    h, w = own_occ.shape
+    for k in ids:
+        sl = slices[k - 1]
+        if sl is None:
+            continue
+        r0, r1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)
+        c0, c1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)
+        piece = labels[r0:r1, c0:c1] == k
+        if (sl[0].stop - sl[0].start) * res > 2 * _STANCE_M or (sl[1].stop - sl[1].start) * res > 2 * _STANCE_M:
+            continue
+        near = _dilate(piece, _STANCE_CLEAR_M / res) & own_occ[r0:r1, c0:c1]
+        if own_lab is not None and (near & own_lab[r0:r1, c0:c1]).any():
+            continue
+        lab, n = ndimage.label(near, structure=np.ones((3, 3), bool))
+        if n < 2 or n > 3:
+            continue
+        sizes = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+        legs = [j + 1 for j in range(n) if sizes[j] >= _STANCE_LEG_CELLS]
+        if len(legs) != 2:  # (a third blob is then a stray cell or two)
+            continue
+        boxes = ndimage.find_objects(lab)
+        if any(max(boxes[j - 1][0].stop - boxes[j - 1][0].start, boxes[j - 1][1].stop - boxes[j - 1][1].start)
+               * res > _LEG_M for j in legs):
+            continue
+        centres = np.array(ndimage.center_of_mass(near, lab, legs), np.float64)
+        if float(np.linalg.norm(centres[0] - centres[1])) * res <= _STANCE_M:
+            out.add(k)
+    return out
 
 
 def _weak_pieces(labels: NDArray[np.int32], slices: list[Any], ids: list[int], weak: NDArray[np.bool_]) -> set[int]:

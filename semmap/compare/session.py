@@ -72,6 +72,9 @@ class Session:
     weak: NDArray[np.bool_] | None = None
     #: the name reports give the session (None: its folder's, see :attr:`name`)
     label: str | None = None
+    #: cells the camera painted (any class: hits with a label): None for a plain map, whose cells no
+    #: camera saw
+    labelled: NDArray[np.bool_] | None = None
 
     @property
     def name(self) -> str:
@@ -249,7 +252,8 @@ def open_session(path: str | Path) -> Session:
         return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
                        m.objects, bool(m.class_names), faint=faint,
                        object_index=_object_index(p, m), glimpsed=glimpsed,
-                       weak=occupied & (hits < FAINT_MIN_HITS))
+                       weak=occupied & (hits < FAINT_MIN_HITS),
+                       labelled=mob[Mobility.STATIC:].sum(axis=0) > 0)
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

@@ -1682,3 +1682,38 @@ def test_two_leg_sized_blobs_alone_that_no_camera_saw_are_a_person_who_stood_not
         assert r.counts()["static_added"] >= 1 and r.left_out["people_stances"] == 0, (r.counts(), r.left_out)
         for x in (5.0 - gap / 2, 5.0 + gap / 2):
             assert np.min(np.linalg.norm(added - (x, y), axis=1)) < 0.1, (x, added)
+
+
+def test_a_bed_whose_four_new_legs_fit_is_paired_with_all_four_not_with_two_that_fit_with_a_leg_excused():
+    # random:758: A's bed (three legs seen, camera-labelled) moved 0.7 m and turned 46°; B saw its four legs,
+    # no camera labelled, as two pieces of two legs. One piece alone fits perfectly when the bed's third
+    # leg is excused as standing on B's obstacles (which the other piece is): the bed would be put on that
+    # piece alone, 0.8 m from where it went. The four legs fit with no leg excused, and they are its place
+    from semmap.compare.changes import ChangeSettings, _cells_xy, _Obj, _unlabelled_partners
+    from semmap.grid.clean import SemiStaticObject
+    from semmap.records import GridSpec
+
+    spec = GridSpec(RES, 0.0, 0.0, 120, 120)
+    corners = np.array([[-0.97, -0.42], [0.97, -0.42], [0.97, 0.42], [-0.97, 0.42]])
+
+    def legs(centre, yaw, which):
+        c, s = math.cos(yaw), math.sin(yaw)
+        xy = corners[list(which)] @ np.array([[c, s], [-s, c]]) + centre
+        cells = [spec.world_to_cell(p[None])[0] + (dr, dc) for p in xy for dr in (0, 1) for dc in (0, 1)]
+        return np.array(cells, np.intp)
+
+    bed_cells = legs((2.5, 2.5), 0.0, (1, 2, 3))
+    two, other_two = legs((3.0, 2.9), math.radians(46), (1, 2)), legs((3.0, 2.9), math.radians(46), (0, 3))
+    own_walls = np.zeros(spec.shape, bool)
+    own_walls[bed_cells[:, 0], bed_cells[:, 1]] = True
+    b_obstacles = np.zeros(spec.shape, bool)
+    for p in (two, other_two):
+        b_obstacles[p[:, 0], p[:, 1]] = True
+    centre = _cells_xy(bed_cells, spec).mean(axis=0)
+    bed = _Obj(SemiStaticObject("bed", (float(centre[0]), float(centre[1])), (2.0, 0.9), 0.0, bed_cells.shape[0]),
+               centre, 0.0, np.zeros((0, 2)), bed_cells)
+    pairs, _, _ = _unlabelled_partners([bed], [two, other_two], spec, ChangeSettings(), True,
+                                       own_walls=own_walls, piece_walls=b_obstacles)
+    assert len(pairs) == 1 and pairs[0][0] is bed
+    got = {tuple(c) for c in pairs[0][1].cells}
+    assert got == {tuple(c) for c in np.concatenate([two, other_two])}, len(got)

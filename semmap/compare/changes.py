@@ -988,7 +988,8 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
         length = max(*o.src.size, float(np.ptp(oxy, axis=0).max()))
         own = _cells_near(other_obstacles, o.cells, 1.5) if other_obstacles is not None else None
         o_tree = cKDTree(oxy) if own is not None and own.shape[0] else None
-        best, best_q, best_cells, best_hidden, best_part = None, 0.0, None, False, False
+        best, best_cells, best_hidden, best_part = None, None, False, False
+        best_rank = (False, 0.0)  # (a fit with no legs excused, its share)
         o_arc: tuple[float | None] | None = None  # the object's arc radius, fitted when first needed
         max_len = 1.3 * length + 2 * res  # (a piece longer than the object is something else)
         # (the object's changed cells, when some of it did not change: what moved, if the rest stayed)
@@ -1036,14 +1037,16 @@ def _unlabelled_partners(objs: list[_Obj], pieces: list[NDArray[np.intp]], spec:
                         _shape_fit(pxy, mxy, turns, res)
                     if q3 >= st.unlabelled_fit and legs3 >= st.min_fit_legs:
                         q, legs, by_hidden, cells, by_part = q3, legs3, False, piece, True
-            if q < st.unlabelled_fit or q <= best_q:
+            # (a fit of legs seen beats one that counts legs the other session's obstacles would hide: a
+            # bed's four legs that fit are its place, not one of them that fits with three excused)
+            if q < st.unlabelled_fit or (not by_hidden, q) <= best_rank:
                 continue
             if legs < st.min_fit_legs:  # no legs to fit: a pot, when both are arcs of one circle
                 if o_arc is None:
                     o_arc = (_piece_arc(o.cells, length, spec),)
                 if not _same_arc(o_arc[0], _piece_arc(cells, p_len, spec)):
                     continue
-            best, best_q, best_cells, best_hidden, best_part = ks, q, cells, by_hidden, by_part
+            best, best_rank, best_cells, best_hidden, best_part = ks, (not by_hidden, q), cells, by_hidden, by_part
         if best is None and _pole(oxy, st):
             # a pole (a screen's stand, a lamp: one leg at LiDAR height) has no shape to fit: its other end
             # is the one pole-sized piece near it (the nearest, by half again as near as any other)

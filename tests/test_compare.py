@@ -1717,3 +1717,20 @@ def test_a_bed_whose_four_new_legs_fit_is_paired_with_all_four_not_with_two_that
     assert len(pairs) == 1 and pairs[0][0] is bed
     got = {tuple(c) for c in pairs[0][1].cells}
     assert got == {tuple(c) for c in np.concatenate([two, other_two])}, len(got)
+
+
+def test_a_bed_that_stayed_whose_builds_grouped_it_unlike_is_fitted_as_still():
+    # random:745: a bed that did not move. A's build grouped with it a strip of wall its labels bled onto;
+    # B's, its four legs alone, each a cell off A's. The two boxes' headings differ by 160°, so no turn
+    # the fit tries from them is none, and refining its hypotheses carried them off: the bed "moved"
+    # 0.2 m. That it stayed is a hypothesis too, which the others must beat
+    from semmap.compare.changes import _fit_motion
+
+    legs = np.array([[-0.95, -0.4], [0.95, -0.4], [0.95, 0.4], [-0.95, 0.4]]) + (3.0, 2.0)
+    leg_cells = np.array([[dx, dy] for dx in (0.0, RES) for dy in (0.0, RES)])
+    a_legs = (legs[:, None, :] + leg_cells[None]).reshape(-1, 2)
+    strip = np.stack([np.full(24, 4.3), 1.0 + RES * np.arange(24)], axis=1)  # the wall's bled labels
+    src = np.concatenate([a_legs, strip])
+    dst = a_legs + (RES, 0.0)
+    motion = _fit_motion(src, dst, (math.radians(160.0), math.radians(-20.0)), RES)
+    assert np.linalg.norm(motion[:2]) <= 2 * RES and abs(motion[2]) < math.radians(2.0), motion

@@ -486,10 +486,10 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
     hypothesis is scored by the shares of either session's cells it explains, less the share of A's
     cells it puts where B contradicts them (``contradicts(xy) -> bool mask``: floor B saw free, or
     beyond what B saw at all, behind its walls); the best few are refined by ICP and scored again, and
-    the best refined one wins (of equal ones, the smallest motion). A cell is explained when it lands
-    on the other session's cells of the object, or on any furniture of the other session
-    (``furniture_a`` / ``furniture_b(xy) -> bool mask``): a build may list a table's far legs as
-    another object, or none, and the motion that puts them there is the right one."""
+    the best refined one wins (of equal ones, the smallest motion), unless none beats staying put. A
+    cell is explained when it lands on the other session's cells of the object, or on any furniture
+    of the other session (``furniture_a`` / ``furniture_b(xy) -> bool mask``): a build may list a
+    table's far legs as another object, or none, and the motion that puts them there is the right one."""
     link = 1.6 * res
     legs_a, legs_b = _legs(src, link), _legs(dst, link)
     tree_a, tree_b = cKDTree(src), cKDTree(dst)
@@ -527,7 +527,9 @@ def _fit_motion(src: NDArray[np.float64], dst: NDArray[np.float64], turns: tuple
         at_turn.sort(key=lambda h: -h[0])
         hyps += [(sc, pose, rank) for rank, (sc, pose) in enumerate(at_turn)]
     hyps.sort(key=lambda h: -h[0])
-    best, best_score = hyps[0][1], -math.inf
+    # (that it stayed is the motion the refined ones must beat: ICP of two unlike sets of cells may carry
+    # every hypothesis off)
+    best, best_score = np.zeros(3), score(np.zeros(3))
     for i, (_, pose, rank) in enumerate(hyps):
         if i >= 6 and rank >= _REFINED_PER_TURN:
             continue

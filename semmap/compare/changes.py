@@ -2131,7 +2131,7 @@ _WEAK_SHARE = 0.5
 
 #: a person's stance at LiDAR height: two legs, each a blob of at least ``_STANCE_LEG_CELLS`` cells no
 #: wider than ``_LEG_M``, their centres at most ``_STANCE_M`` apart, nothing else within ``_STANCE_CLEAR_M``
-#: but at most one stray cell or two (a chair's or a table's legs, 3-7 cm, are a cell or two each)
+#: but a stray cell or two (a chair's or a table's legs, 3-7 cm, are a cell or two each)
 _STANCE_LEG_CELLS = 3
 _STANCE_M = 0.45
 _STANCE_CLEAR_M = 0.3
@@ -2140,34 +2140,44 @@ _STANCE_CLEAR_M = 0.3
 def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_occ: NDArray[np.bool_],
              own_lab: NDArray[np.bool_] | None, res: float) -> set[int]:
     """The pieces (label ids) that are a person's stance (see ``_STANCE_M``) in their own map, with no
-    cell of it or near it painted by a camera."""
+    cell of it or near it painted by a camera: two blobs of the piece's cells (and at most two cells
+    more, a stray return a metre off the group joined), each the changed part of an obstacle of its own
+    map no wider than a leg."""
     out = set()
-    pad = int(math.ceil(_STANCE_CLEAR_M / res))
+    pad = int(math.ceil((_STANCE_CLEAR_M + _LEG_M) / res)) + 1
     h, w = own_occ.shape
+    eight = np.ones((3, 3), bool)
     for k in ids:
         sl = slices[k - 1]
         if sl is None:
             continue
-        r0, r1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)
-        c0, c1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)
-        piece = labels[r0:r1, c0:c1] == k
-        if (sl[0].stop - sl[0].start) * res > 2 * _STANCE_M or (sl[1].stop - sl[1].start) * res > 2 * _STANCE_M:
+        win = (slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
+               slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)))
+        piece = labels[win] == k
+        lab, n = ndimage.label(piece, structure=eight)
+        sizes = np.bincount(lab.ravel(), minlength=n + 1)
+        legs = [j for j in range(1, n + 1) if sizes[j] >= _STANCE_LEG_CELLS]
+        if len(legs) != 2 or int(piece.sum()) - int(sizes[legs].sum()) > 2:
             continue
-        near = _dilate(piece, _STANCE_CLEAR_M / res) & own_occ[r0:r1, c0:c1]
-        if own_lab is not None and (near & own_lab[r0:r1, c0:c1]).any():
+        # the legs as their own map holds them (a leg's cells by the other session's obstacles are no
+        # change, but they are the leg): two obstacles, each no wider than a leg
+        own = own_occ[win]
+        olab, _ = ndimage.label(own, structure=eight)
+        held = np.unique(olab[np.isin(lab, legs)])
+        held = held[held > 0]
+        if held.size != 2:
             continue
-        lab, n = ndimage.label(near, structure=np.ones((3, 3), bool))
-        if n < 2 or n > 3:
+        body = np.isin(olab, held)
+        boxes = [ndimage.find_objects((olab == j).astype(np.int32))[0] for j in held]
+        if any(max(b[0].stop - b[0].start, b[1].stop - b[1].start) * res > _LEG_M for b in boxes):
             continue
-        sizes = np.bincount(lab.ravel(), minlength=n + 1)[1:]
-        legs = [j + 1 for j in range(n) if sizes[j] >= _STANCE_LEG_CELLS]
-        if len(legs) != 2:  # (a third blob is then a stray cell or two)
+        # nothing else of their map within reach but a stray cell or two, and no camera saw any of it
+        around = _dilate(body, _STANCE_CLEAR_M / res) & own & ~body
+        if int(around.sum()) > 2:
             continue
-        boxes = ndimage.find_objects(lab)
-        if any(max(boxes[j - 1][0].stop - boxes[j - 1][0].start, boxes[j - 1][1].stop - boxes[j - 1][1].start)
-               * res > _LEG_M for j in legs):
+        if own_lab is not None and (own_lab[win] & (body | around)).any():
             continue
-        centres = np.array(ndimage.center_of_mass(near, lab, legs), np.float64)
+        centres = np.array(ndimage.center_of_mass(own, olab, held.tolist()), np.float64)
         if float(np.linalg.norm(centres[0] - centres[1])) * res <= _STANCE_M:
             out.add(k)
     return out

@@ -2141,8 +2141,8 @@ def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_o
              own_lab: NDArray[np.bool_] | None, res: float) -> set[int]:
     """The pieces (label ids) that are a person's stance (see ``_STANCE_M``) in their own map, with no
     cell of it or near it painted by a camera: two blobs of the piece's cells (and at most two cells
-    more, a stray return a metre off the group joined), each the changed part of an obstacle of its own
-    map no wider than a leg."""
+    more: a stray return up to half a metre off, which the change's grouping joined), each the changed
+    part of an obstacle of its own map no wider than a leg."""
     out = set()
     pad = int(math.ceil((_STANCE_CLEAR_M + _LEG_M) / res)) + 1
     h, w = own_occ.shape
@@ -2168,8 +2168,9 @@ def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_o
         if held.size != 2:
             continue
         body = np.isin(olab, held)
-        boxes = [ndimage.find_objects((olab == j).astype(np.int32))[0] for j in held]
-        if any(max(b[0].stop - b[0].start, b[1].stop - b[1].start) * res > _LEG_M for b in boxes):
+        boxes = ndimage.find_objects(olab)
+        if any(max(b[0].stop - b[0].start, b[1].stop - b[1].start) * res > _LEG_M
+               for b in (boxes[j - 1] for j in held)):
             continue
         # nothing else of their map within reach but a stray cell or two, and no camera saw any of it
         around = _dilate(body, _STANCE_CLEAR_M / res) & own & ~body

@@ -266,6 +266,7 @@ def _report(r: DiffResult, path: Path) -> None:
               "observed, such as the inside of a pillar); "
               f"{left.get('weak_obstacles', 0)} obstacles most of whose cells rest on one or two LiDAR returns "
               "(a far wall seen once, edge-on); "
-              f"{left.get('people_stances', 0)} pairs of leg-sized blobs alone on the floor that no camera saw "
+              f"{left.get('people_stances', 0)} pair{'' if left.get('people_stances', 0) == 1 else 's'} of "
+              "leg-sized blobs alone on the floor that no camera saw "
               "(a person who stood while the robot passed).", ""]
     path.write_text("\n".join(lines), encoding="utf-8")

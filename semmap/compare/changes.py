@@ -42,7 +42,7 @@ from ..geometry import dilate_mask, disk_kernel, se2_apply, se2_inverse, wrap_an
 from ..grid import SemiStaticObject
 from ..records import GridSpec
 from ..register.metrics import align_se2
-from .session import _LEG_M, Session
+from .session import LEG_M, Session
 
 __all__ = [
     "CHANGE_TYPES",
@@ -2130,7 +2130,7 @@ _WEAK_SHARE = 0.5
 
 
 #: a person's stance at LiDAR height: two legs, each a blob of at least ``_STANCE_LEG_CELLS`` cells no
-#: wider than ``_LEG_M``, their centres at most ``_STANCE_M`` apart, nothing else within ``_STANCE_CLEAR_M``
+#: wider than ``LEG_M``, their centres at most ``_STANCE_M`` apart, nothing else within ``_STANCE_CLEAR_M``
 #: but a stray cell or two (a chair's or a table's legs, 3-7 cm, are a cell or two each)
 _STANCE_LEG_CELLS = 3
 _STANCE_M = 0.45
@@ -2144,7 +2144,7 @@ def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_o
     more: a stray return up to half a metre off, which the change's grouping joined), each the changed
     part of an obstacle of its own map no wider than a leg."""
     out = set()
-    pad = int(math.ceil((_STANCE_CLEAR_M + _LEG_M) / res)) + 1
+    pad = int(math.ceil((_STANCE_CLEAR_M + LEG_M) / res)) + 1
     h, w = own_occ.shape
     eight = np.ones((3, 3), bool)
     for k in ids:
@@ -2169,7 +2169,7 @@ def _stances(labels: NDArray[np.int32], slices: list[Any], ids: list[int], own_o
             continue
         body = np.isin(olab, held)
         boxes = ndimage.find_objects(olab)
-        if any(max(b[0].stop - b[0].start, b[1].stop - b[1].start) * res > _LEG_M
+        if any(max(b[0].stop - b[0].start, b[1].stop - b[1].start) * res > LEG_M
                for b in (boxes[j - 1] for j in held)):
             continue
         # nothing else of their map within reach but a stray cell or two, and no camera saw any of it

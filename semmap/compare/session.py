@@ -31,7 +31,7 @@ from ..records import GridSpec, Mobility
 if TYPE_CHECKING:
     from ..mapfolder.reader import MapFolder
 
-__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "Session", "distinct_names", "open_session", "people_cells"]
+__all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "LEG_M", "Session", "distinct_names", "open_session", "people_cells"]
 
 #: a cell the map calls free is a faint obstacle when at least this many beams ended in it, and this
 #: share of the beams that reached it (a person walking through ends a beam or two among hundreds)
@@ -128,13 +128,13 @@ def people_cells(occupied: NDArray[np.bool_], dropped: NDArray[np.bool_], person
     person = np.asarray(person_hits, np.float32)
     unlabelled = dropped & (person == 0)
     lab, n = ndimage.label(unlabelled, structure=np.ones((3, 3), bool))  # its pieces, 8-connected
-    fringe = _fringe(occupied, unlabelled, lab, n, min_extent=_LEG_M / resolution)
+    fringe = _fringe(occupied, unlabelled, lab, n, min_extent=LEG_M / resolution)
     faces = (_surface_gaps(occupied) | _lines(unlabelled, lab, n) | fringe) & unlabelled
     return (dropped & ~faces) | ((person > 0) & (person >= 0.3 * np.asarray(labelled_hits, np.float32)))
 
 
 #: a person's leg is at most this wide (m): a kept blob no larger has no fringe of its own
-_LEG_M = 0.2
+LEG_M = 0.2
 
 
 def _fringe(occupied: NDArray[np.bool_], cells: NDArray[np.bool_], lab: NDArray[np.int32], n: int,

@@ -241,8 +241,9 @@ def open_session(path: str | Path) -> Session:
         layers = m.layers
         mob = layers.mobility
         occupied = np.asarray(m.occupied, bool)
+        labelled_hits = mob[Mobility.STATIC:].sum(axis=0)  # hits the camera gave a class, per cell
         dynamic = people_cells(occupied, np.asarray(m.cleaned.dynamic_removed, bool), mob[Mobility.DYNAMIC],
-                               mob[Mobility.STATIC:].sum(axis=0), m.spec.resolution)
+                               labelled_hits, m.spec.resolution)
         hits = layers.hits.astype(np.float32)
         seen = hits + layers.free.astype(np.float32)
         glimpsed = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS)
@@ -253,7 +254,7 @@ def open_session(path: str | Path) -> Session:
                        m.objects, bool(m.class_names), faint=faint,
                        object_index=_object_index(p, m), glimpsed=glimpsed,
                        weak=occupied & (hits < FAINT_MIN_HITS),
-                       labelled=mob[Mobility.STATIC:].sum(axis=0) > 0)
+                       labelled=labelled_hits > 0)
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

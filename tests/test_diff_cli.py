@@ -83,6 +83,29 @@ def test_diff_against_a_plain_map_finds_the_new_obstacle_and_writes_every_file(d
     assert sum(again.counts().values()) == 0
 
 
+@pytest.mark.parametrize("mode", ["raw", "scale"])
+def test_a_plain_map_saved_in_another_mode_diffs_as_its_trinary_twin(demo_map, changed, tmp_path, mode):
+    """The changed map saved as other tools' savers may write it: ``raw`` (the pixel is the occupancy: 0 free,
+    100 occupied, 255 unknown) or ``scale`` with unknown cells transparent. The diff finds the same one new
+    obstacle; read as trinary pixels, a raw map's free floor (0, black) would be one large obstacle."""
+    b = read_map(changed[0])
+    img = np.where(b.occupied, 100, np.where(b.free, 0, 255)).astype(np.uint8)
+    if mode == "scale":
+        grey = np.where(b.occupied, 0, 254).astype(np.uint8)
+        img = np.dstack([grey, grey, grey, np.where(b.unknown, 0, 255).astype(np.uint8)])
+    d = tmp_path / mode
+    d.mkdir()
+    assert cv2.imwrite(str(d / "map.png"), np.flipud(img))
+    s = b.spec
+    (d / "map.yaml").write_text(f"image: map.png\nmode: {mode}\nresolution: {s.resolution}\n"
+                                f"origin: [{s.origin_x}, {s.origin_y}, 0.0]\nnegate: 0\n"
+                                "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    again = read_map(d / "map.yaml")
+    assert np.array_equal(again.occupied, b.occupied) and np.array_equal(again.free, b.free)
+    r = semmap.diff(demo_map.out, d / "map.yaml")
+    assert r.counts()["static_added"] == 1 and sum(r.counts().values()) == 1
+
+
 def test_bad_input_is_one_line_and_leaves_nothing(demo_map, changed, tmp_path, capsys):
     out = tmp_path / "diff"
     assert main(["diff", str(demo_map.out), str(tmp_path / "nowhere"), "--out", str(out)]) == MapFolderError.exit_code

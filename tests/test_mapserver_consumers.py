@@ -71,3 +71,58 @@ def test_ground_truth_maps_load_as_written(ros1_demo, rule):
         data = load(gt / f"{name}.yaml", rule)
         assert not (data == -1).any(), name  # the simulator knows every cell
         assert np.array_equal(data == 100, read_map(gt / f"{name}.yaml").occupied), name
+
+
+def _write_other_tools_map(folder, mode, img, negate=0):
+    """A map as another tool's saver may write it: ``img`` (top row first) in ``mode``."""
+    import cv2
+
+    name = "m.png"
+    assert cv2.imwrite(str(folder / name), img)
+    (folder / "m.yaml").write_text(f"image: {name}\nmode: {mode}\nresolution: 0.05\norigin: [-1.0, 2.0, 0.0]\n"
+                                   f"negate: {negate}\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    return folder / "m.yaml"
+
+
+@pytest.mark.parametrize("case", ["trinary_alpha", "negate", "scale", "scale_alpha", "raw"])
+def test_maps_of_other_tools_read_as_nav2_loads_them(tmp_path, case):
+    """``semmap diff`` reads maps from other tools (slam_toolbox, Cartographer, map_saver in any mode):
+    semmap's reader calls a cell occupied exactly where nav2 publishes 100 and free where it publishes 0,
+    in trinary, scale (in-between values neither) and raw mode (the pixel is the occupancy: 0 free, 100
+    occupied, 255 unknown, the rest by the YAML's thresholds), with an alpha channel (not opaque: unknown) and
+    with ``negate``."""
+    rng = np.random.default_rng(3)
+    shape = (9, 13)
+    if case == "raw":
+        img = rng.choice(np.array([0, 100, 255, 50, 30, 80], np.uint8), size=shape)
+        path = _write_other_tools_map(tmp_path, "raw", img)
+    else:
+        grey = rng.choice(np.array([0, 254, 205, 128, 40, 230], np.uint8), size=shape)
+        mode = "scale" if case.startswith("scale") else "trinary"
+        if case == "negate":
+            grey = 255 - grey
+        img = grey
+        if case.endswith("alpha"):
+            alpha = np.where(rng.random(shape) < 0.3, 0, 255).astype(np.uint8)
+            img = np.dstack([grey, grey, grey, alpha])
+        path = _write_other_tools_map(tmp_path, mode, img, negate=int(case == "negate"))
+    m = read_map(path)
+    data = load(path, "nav2")
+    if case == "raw":  # nav2 publishes the values as they are: judged by the YAML's thresholds, as trinary
+        known = data >= 0
+        assert np.array_equal(m.occupied, known & (data / 100 > 0.65))
+        assert np.array_equal(m.free, known & (data / 100 < 0.196))
+    else:
+        assert np.array_equal(m.occupied, data == 100)
+        assert np.array_equal(m.free, data == 0)
+    assert m.occupied.any() and m.free.any() and m.unknown.any()
+    if case == "raw":  # the free floor (0) is no obstacle however black its pixels are
+        assert not m.occupied[np.flipud(img) == 0].any()
+
+
+def test_a_map_in_an_unknown_mode_is_one_error_naming_the_key(tmp_path):
+    from semmap.errors import ConfigError
+
+    path = _write_other_tools_map(tmp_path, "ternary", np.zeros((3, 3), np.uint8))
+    with pytest.raises(ConfigError, match=r"m\.yaml: mode 'ternary' is not a map_server mode"):
+        read_map(path)

@@ -31,6 +31,7 @@ from .yamlio import read_yaml, write_yaml
 __all__ = [
     "FREE",
     "FREE_THRESH",
+    "MODES",
     "OCCUPIED",
     "OCCUPIED_THRESH",
     "UNKNOWN",
@@ -110,9 +111,24 @@ class MapImage:
         return ~(self.occupied | self.free)
 
 
+#: the map modes map_server and nav2 read (the YAML's ``mode``; trinary when it has none)
+MODES = ("trinary", "scale", "raw")
+
+
 def read_map(yaml_path: str | Path) -> MapImage:
-    """Read a map_server YAML + image the way ROS1's map_server does: ``p = (255 - v) / 255`` (``v``
-    when ``negate``), occupied when ``p > occupied_thresh``, free when ``p < free_thresh``, else unknown."""
+    """Read a map_server YAML + image as map_server and nav2 publish it, in any ``mode``:
+
+    * ``trinary`` (the default): the mean of the colour channels ``v`` turns into an occupancy ``p =
+      (255 - v) / 255`` (``v / 255`` when ``negate``); occupied when ``p > occupied_thresh``, free
+      when ``p < free_thresh``, else unknown. A pixel with an alpha channel below 255 is unknown, as
+      nav2 has it;
+    * ``scale``: the same ``p``; occupied and free where nav2 publishes 100 and 0 (the thresholds, and
+      in-between values that round to them), the values in between (1-99) neither;
+    * ``raw``: the pixel value is the published occupancy itself, 0-100 (``negate`` aside, as nav2
+      ignores it there), judged by the YAML's thresholds on ``v / 100`` as a trinary map would be;
+      any other value is unknown (map_saver's 255).
+
+    Errors are one line naming the YAML and the key."""
     p = Path(yaml_path)
     meta = read_yaml(p, "map")
     try:
@@ -124,14 +140,31 @@ def read_map(yaml_path: str | Path) -> MapImage:
         free_t = float(meta["free_thresh"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"{p}: missing or malformed map key ({exc})") from None
+    mode = meta.get("mode", "trinary")
+    if mode not in MODES:
+        raise ConfigError(f"{p}: mode {mode!r} is not a map_server mode ({', '.join(MODES)})")
     img = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ConfigError(f"{p}: cannot read map image {image}")
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    alpha = None
     if img.ndim == 3:
-        img = img[:, :, :3].mean(axis=2)
-    grey = img.astype(np.float64) / (65535.0 if img.dtype == np.uint16 else 255.0)
-    occ_p = grey if negate else 1.0 - grey
+        if img.shape[2] in (2, 4):  # grey or colour with an alpha channel, last
+            alpha = img[:, :, -1].astype(np.float64) / scale
+        img = img[:, :, :3 if img.shape[2] >= 3 else 1].mean(axis=2)
+    grey = img.astype(np.float64) / scale
+    if mode == "raw":
+        v = np.round(grey * 255.0)
+        occ_p = np.where(v <= 100.0, v / 100.0, np.nan)
+    else:
+        occ_p = grey if negate else 1.0 - grey
+        if alpha is not None:
+            occ_p = np.where(alpha < 1.0, np.nan, occ_p)
     grid = np.flipud(occ_p)
     h, w = grid.shape
     spec = GridSpec(res, ox, oy, w, h)
-    return MapImage(spec, grid > occ_t, grid < free_t, yaw)
+    if mode == "scale":
+        # nav2 publishes round(100 (p - free) / (occupied - free)) in between: 0 is free, 100 occupied
+        shade = np.round(100.0 * (grid - free_t) / (occ_t - free_t))
+        return MapImage(spec, shade >= 100.0, shade <= 0.0, yaw)
+    return MapImage(spec, grid > occ_t, grid < free_t, yaw)  # (NaN, unknown, is neither)

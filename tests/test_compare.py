@@ -1355,6 +1355,29 @@ def test_a_new_chair_whose_map_dropped_two_legs_as_a_persons_is_added_on_all_fou
         assert np.min(np.linalg.norm(added - leg, axis=1)) < 0.05, (leg, added)
 
 
+def test_unlabelled_furniture_whose_new_place_lost_two_legs_to_the_people_rule_is_one_move():
+    # a chair no camera labelled, beside the path in both tours: its four legs plain obstacles in A. It moved
+    # 2.8 m, and B's cleaning dropped two of its legs there as a person's (people evidence, no obstacle). The
+    # static changes take those legs back (a chair's rectangle: the test above), and the chair that went and
+    # the chair that came, four legs each, are one move of an unlabelled object, not a removal and an addition
+    # (the moves of unlabelled furniture, judged before the static changes, see two legs in B: too few)
+    a, b = Room(), Room()
+    a.unlabelled.append(("chair", (3.0, 2.0), (0.45, 0.45), 0.0))
+    for x in (4.805, 5.195):
+        b.walls.append((x, 3.805, x, 3.805))  # the legs B's map kept
+    b.dropped += [(4.805, 4.195), (5.195, 4.195)]  # the two it dropped as a person's
+    r = _diff(a, b)
+    counts = r.counts()
+    assert counts["object_moved"] == 1 and counts["static_added"] == counts["static_removed"] == 0, counts
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name is None
+    assert mv.displacement_m == pytest.approx(math.hypot(2.0, 2.0), abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (5.0, 4.0)) < 0.05
+    assert np.linalg.norm(_world(mv.from_xy) - (3.0, 2.0)) < 0.05
+    # the mask is the same: four legs removed, four added
+    assert _mask_world(r, 1).shape[0] >= 4 and _mask_world(r, 2).shape[0] >= 4
+
+
 @pytest.mark.parametrize("back_leg", ["two cells out", "a cell out"])
 def test_a_chair_no_camera_labelled_gone_from_a_wall_counts_its_back_leg_two_cells_out(back_leg):
     # A's chair, no camera label, a cell per leg: two front legs in the open (too few for a set alone)

@@ -1180,6 +1180,40 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
     return out
 
 
+def _static_moves(changes: list[Change], removed: list[tuple[Change, NDArray[np.intp]]],
+                  added: list[tuple[Change, NDArray[np.intp]]], spec: GridSpec, st: ChangeSettings) -> list[Change]:
+    """``changes`` with a static change removed and a static change added that are one piece of furniture no
+    camera labelled, moved, reported as that move (class None): furniture on legs whose legs the diff found
+    only as static changes, a session's cleaning having dropped two of its four as a person's (the leg
+    sets of the static changes take such legs back; the moves of unlabelled furniture, judged before them,
+    see two legs, too few to fit). ``removed`` / ``added``: the static changes and their cells; the pairs
+    are those :func:`_unlabelled_moves` fits (three legs on three, or arcs of one circle), every cell of
+    them already a change, so the mask stays as it is."""
+    if not removed or not added:
+        return changes
+    none = np.zeros(spec.shape, bool)  # (static changes are obstacles, no people: the leg sets judged them)
+    pairs = _unlabelled_moves([p for _, p in removed], [p for _, p in added], none, none, spec, st)
+    if not pairs:
+        return changes
+    res = spec.resolution
+    gone: set[int] = set()
+    for oa, ob in pairs:
+        ca = next(c for c, p in removed if p is oa.cells)
+        cb = next(c for c, p in added if p is ob.cells)
+        src, dst = _cells_xy(oa.cells, spec), _cells_xy(ob.cells, spec)
+        motion = _fit_motion(src, dst, _candidate_turns(oa.yaw, ob.yaw), res)
+        from_c = _reference_point(src, dst, motion)
+        to_c = se2_apply(motion, from_c[None])[0]
+        disp = float(np.linalg.norm(to_c - from_c))
+        if disp < st.still_m:
+            continue
+        turn = math.degrees(_box_turn(0.0, float(motion[2]))) if _elongated(oa) and _elongated(ob) else None
+        gone |= {id(ca), id(cb)}
+        changes.append(Change("object_moved", (float(to_c[0]), float(to_c[1])), cb.area_m2, cb.cells, None,
+                              (float(from_c[0]), float(from_c[1])), (float(to_c[0]), float(to_c[1])), disp, turn))
+    return [c for c in changes if id(c) not in gone]
+
+
 def _cell_mask(o: _Obj, spec: GridSpec) -> NDArray[np.bool_]:
     """The floor the object takes: the convex hull of its cells (a bed's four legs and what is
     between them), and its footprint when it has one."""
@@ -2023,6 +2057,7 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
     # part of that object (its legs the camera did not label), not a change of its own
     min_cells = max(1, int(math.ceil(st.min_static_m2 / (res * res))))
     near_object_change = _dilate(mask > 0, st.group_m / res)
+    reported: dict[int, list[tuple[Change, NDArray[np.intp]]]] = {1: [], 2: []}  # each static change's cells
     for (kind, cells, voided, value, own_occ, own_free, other_occ, other_free, other_semi, own_faint, other_near,
          own_weak, own_dyn, in_a) in (
             ("static_added", added & ~on_objects, added_raw & ~added & ~on_objects, 1, lo.occ_b, lo.free_b, lo.occ_a,
@@ -2107,7 +2142,16 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         if inside.any():
             mask[inside] = value
             found = _with_insides(found, ids, labels, inside, spec)
-        changes += [c for k, c in enumerate(found) if ids[k] not in touching and ids[k] not in faces]
+        for k, change in enumerate(found):
+            if ids[k] in touching or ids[k] in faces:
+                continue
+            changes.append(change)
+            sl = slices[ids[k] - 1] if ids[k] - 1 < len(slices) else None
+            if sl is not None:
+                rr, cc = np.nonzero((labels[sl] == ids[k]) & (mask[sl] == value))
+                reported[value].append((change, np.stack([rr + sl[0].start, cc + sl[1].start], axis=1).astype(np.intp)))
+    if a.semantic and b.semantic:
+        changes = _static_moves(changes, reported[2], reported[1], spec, st)
 
     # floor only one session observed
     min_explored = max(1, int(math.ceil(st.min_explored_m2 / (res * res))))

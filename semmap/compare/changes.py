@@ -1124,8 +1124,9 @@ def _cells_near(mask: NDArray[np.bool_], cells: NDArray[np.intp], radius: float)
     return np.stack([rr + r0, cc + c0], axis=1).astype(np.intp)
 
 
-def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]], dyn_a: NDArray[np.bool_],
-                      dyn_b: NDArray[np.bool_], spec: GridSpec, st: ChangeSettings) -> list[tuple[_Obj, _Obj]]:
+def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[np.intp]],
+                      dyn_a: NDArray[np.bool_] | None, dyn_b: NDArray[np.bool_] | None, spec: GridSpec,
+                      st: ChangeSettings) -> list[tuple[_Obj, _Obj]]:
     """Moves of furniture neither session's camera labelled: a piece of A's removed cells and one of
     B's added cells (no objects, each at most ``max_object_m`` long, of lengths within 30 % of each
     other and at most ``max_move_m`` apart) onto which a rigid motion lays at least
@@ -1133,11 +1134,11 @@ def _unlabelled_moves(pieces_a: list[NDArray[np.intp]], pieces_b: list[NDArray[n
     legs: two people's legs fit each other too), or which are arcs of circles of one radius (a pot,
     a round bin: one blob, no legs, but its rim); of those, the pairs that move least in all. Their
     class is None: an object, of unknown class. A piece whose own cells are a third or more people's
-    (``dyn_a``, ``dyn_b``: a person cleaning left in) is none."""
+    (``dyn_a``, ``dyn_b``: a person cleaning left in; None: pieces already judged no people) is none."""
     res = spec.resolution
 
-    def usable(cells: NDArray[np.intp], dyn: NDArray[np.bool_]) -> bool:
-        return cells.shape[0] >= 3 and float(dyn[cells[:, 0], cells[:, 1]].mean()) < 1.0 / 3.0
+    def usable(cells: NDArray[np.intp], dyn: NDArray[np.bool_] | None) -> bool:
+        return cells.shape[0] >= 3 and (dyn is None or float(dyn[cells[:, 0], cells[:, 1]].mean()) < 1.0 / 3.0)
 
     ba = [_piece_box(c, spec) if usable(c, dyn_a) else None for c in pieces_a]
     bb = [_piece_box(c, spec) if usable(c, dyn_b) else None for c in pieces_b]
@@ -1191,8 +1192,8 @@ def _static_moves(changes: list[Change], removed: list[tuple[Change, NDArray[np.
     them already a change, so the mask stays as it is."""
     if not removed or not added:
         return changes
-    none = np.zeros(spec.shape, bool)  # (static changes are obstacles, no people: the leg sets judged them)
-    pairs = _unlabelled_moves([p for _, p in removed], [p for _, p in added], none, none, spec, st)
+    # (static changes are obstacles, no people: the leg sets and the stances judged them)
+    pairs = _unlabelled_moves([p for _, p in removed], [p for _, p in added], None, None, spec, st)
     if not pairs:
         return changes
     res = spec.resolution

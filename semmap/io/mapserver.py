@@ -146,13 +146,13 @@ def read_map(yaml_path: str | Path) -> MapImage:
     img = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ConfigError(f"{p}: cannot read map image {image}")
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    top = 65535.0 if img.dtype == np.uint16 else 255.0  # the pixel's full value
     alpha = None
     if img.ndim == 3:
         if img.shape[2] in (2, 4):  # grey or colour with an alpha channel, last
-            alpha = img[:, :, -1].astype(np.float64) / scale
+            alpha = img[:, :, -1].astype(np.float64) / top
         img = img[:, :, :3 if img.shape[2] >= 3 else 1].mean(axis=2)
-    grey = img.astype(np.float64) / scale
+    grey = img.astype(np.float64) / top
     if mode == "raw":
         v = np.round(grey * 255.0)
         occ_p = np.where(v <= 100.0, v / 100.0, np.nan)

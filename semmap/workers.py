@@ -707,7 +707,8 @@ def _pose_array(poses: array) -> NDArray[np.float64]:
 def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection, cfg: dict[str, Any]) -> None:
     from .register import Registrar
 
-    # loop closure runs in the fusion worker (see _fusion_body): each scan's points go there with it
+    # loop closure's search runs in the fusion worker (see _fusion_body): each scan's keyframe record,
+    # made here, goes there with it
     registrar = Registrar(RegistrationConfig.model_validate(cfg), close_loops_here=False)
     out.send(("ready",))
     cpu0 = time.process_time()
@@ -719,7 +720,7 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
         for painted, odom_pose, prepared in batch:
             pose = registrar.register(painted, odom_pose, prepared)
             poses.extend(pose.tolist())
-            done.append((pose, painted, registrar.loop_points))
+            done.append((pose, painted, registrar.loop_record))
         busy += time.perf_counter() - t0
         to_fusion.send(done)
     to_fusion.send(None)
@@ -728,9 +729,11 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
 
 def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...],
                  reg_cfg: dict[str, Any]) -> None:
-    # fusion may fall behind (its pipe is bounded); registration is the critical path
-    with contextlib.suppress(OSError):
-        os.nice(5)
+    # fusion may fall behind (its pipe is bounded); registration is the critical path. Not so with loop
+    # closure, whose search runs here: then this worker is the critical path
+    if not RegistrationConfig.model_validate(reg_cfg).loop_closure.enabled:
+        with contextlib.suppress(OSError):
+            os.nice(5)
     from .grid import SemanticGrid
     from .grid.consistency import EndpointSample
     from .register.registrar import loop_closer, solve_loops
@@ -751,12 +754,12 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     try:
         while (batch := inbox.recv()) is not None:
             t0 = time.perf_counter()
-            for pose, painted, loop_points in batch:
+            for pose, painted, loop_record in batch:
                 refuse.add(grid, pose, painted)
                 sample.add(len(poses) // 3, painted)
-                if closer is not None and loop_points is not None:
+                if closer is not None and loop_record is not None:
                     t1 = time.perf_counter()
-                    closer.add(len(poses) // 3, pose, loop_points)
+                    closer.add_record(loop_record)
                     loops_s += time.perf_counter() - t1
                 poses.extend(np.asarray(pose, np.float64).tolist())
             busy += time.perf_counter() - t0

@@ -7,6 +7,7 @@ doubles walls on a long tour.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 import time
@@ -17,6 +18,7 @@ from test_register import _cast as _cast_rays
 
 from semmap.geometry import se2_apply, se2_between, se2_compose, wrap_angle
 from semmap.register.loops import (
+    KeyframeSelector,
     LoopCloser,
     LoopConfig,
     descriptor_distance,
@@ -163,6 +165,54 @@ def test_memory_keyframes_only():
     assert per_scan <= 80  # index, keyframe and relative pose (36 bytes) in doubling buffers
 
 
+def test_the_search_fed_with_records_made_elsewhere_closes_the_same_loops(twice_round):
+    """The build makes each scan's keyframe record where the scan is registered and searches for loops in
+    another process: records made by a KeyframeSelector, copied as a pipe would, give the loops, step edges
+    and poses that LoopCloser.add gives."""
+    closer, est = twice_round
+    reference = closer.optimise()
+    rng = np.random.default_rng(0)  # the scans of the fixture (_run)
+    selector, search = KeyframeSelector(LoopConfig()), LoopCloser(LoopConfig())
+    keyframes = 0
+    for i, (p, t) in enumerate(zip(est, TWICE)):
+        rec = copy.deepcopy(selector.make(i, p, _scan(t, ROOM, rng), _step_information(TWICE, i)))
+        keyframes += rec.keyframe
+        search.add_record(rec)
+    result = search.optimise()
+    assert keyframes == reference.stats["keyframes"] == result.stats["keyframes"]
+    assert result.loops == reference.loops and len(result.loops) >= 20
+    assert result.stats["rematched"] == reference.stats["rematched"] > 0
+    np.testing.assert_allclose(result.poses, reference.poses, atol=1e-9)
+
+
+def test_a_place_map_made_in_one_insertion_holds_what_keyframe_by_keyframe_insertion_holds(twice_round):
+    """A place's KISS-ICP map takes its keyframes' points in one call when no insertion would drop a voxel
+    (none lies beyond max_range of a keyframe inserted after it); else one keyframe at a time, each
+    insertion dropping what lies beyond max_range of that keyframe, as the registration's map does."""
+    from semmap.config import RegistrationConfig
+    from semmap.register.kiss import KissMatcher, PreparedScan
+
+    closer, _ = twice_round
+    poses = closer._kf_pose.view
+    j, lo, hi = 40, 35, 45
+    for max_range in (20.0, 4.0):  # the room is 16 m wide: at 4 m the one-by-one insertion drops voxels
+        reg = RegistrationConfig(max_range=max_range)
+        probe = LoopCloser(LoopConfig(), reg)
+        probe._kf_pose, probe._kf_points = closer._kf_pose, closer._kf_points
+        matcher = KissMatcher(reg)
+        whole, _, _, voxel_map = probe._place(matcher, j, lo, hi)
+        expected = matcher.new_map()
+        for i, r in zip(range(lo, hi + 1), se2_between(poses[j], poses[lo: hi + 1])):
+            p3 = np.zeros((closer._kf_points[i].shape[0], 3))
+            p3[:, :2] = closer._kf_points[i][:, :2]
+            matcher.update_map(PreparedScan(p3, p3), r, expected)
+        got, want = voxel_map.point_cloud(), expected.point_cloud()
+        assert got.shape == want.shape
+        if max_range == 4.0:
+            assert want.shape[0] < whole.shape[0] * 0.9  # voxels were dropped
+        np.testing.assert_allclose(np.unique(got.round(6), axis=0), np.unique(want.round(6), axis=0), atol=1e-6)
+
+
 def test_injected_false_loop_is_rejected(twice_round):
     closer, _ = twice_round
     clean = closer.optimise()
@@ -229,7 +279,8 @@ def _cross_room(loops: list[tuple[int, int]], in_b: np.ndarray) -> int:
 def test_twin_rooms_are_not_one_place():
     """Room B looks exactly like room A: B's keyframes match A's by descriptor and ICP. The
     correction they ask for (12 m after 16 m of driving) is beyond any plausible drift, so the
-    verification refuses them; the true loops (within a room, and back in room A) are kept."""
+    verification refuses them (before any ICP when the guess is that far already); the true loops
+    (within a room, and back in room A) are kept."""
     tour = ([(0.0, 0.0)] + ROOM_TOUR + [(0.0, 0.0), (12.0, 0.0)] + [(x + 12.0, y) for x, y in ROOM_TOUR]
             + [(12.0, 0.0), (0.0, 0.0)] + ROOM_TOUR)
     truth = _path(tour, step=0.15)
@@ -237,11 +288,13 @@ def test_twin_rooms_are_not_one_place():
     result = closer.optimise()
     before, after = _errors(est, truth), _errors(result.poses, truth)
     s = result.stats
-    print(f"\ncandidates {s['candidates']}, gate rejected {s['rejected_gate']}, accepted {s['accepted']}, rejected by "
+    print(f"\ncandidates {s['candidates']}, gate rejected {s['rejected_gate']} (before ICP {s['skipped_gate']}), "
+          f"accepted {s['accepted']}, rejected by "
           f"the solve {s['rejected_after_solve']}, kept {s['loops']} ({_cross_room(result.loops, _in_b(truth))} "
           f"across rooms); max error {before.max():.3f} -> {after.max():.3f} m, final {before[-1]:.3f} -> "
           f"{after[-1]:.4f} m")
-    assert s["rejected_gate"] >= 5  # room B did match room A
+    assert s["rejected_gate"] >= 1  # room B did match room A
+    assert s["skipped_gate"] >= 5  # and descriptor guesses 12 m off were refused before any ICP
     assert _cross_room(result.loops, _in_b(truth)) == 0
     assert s["loops"] >= 10
     assert after[-1] < before[-1] / 5.0

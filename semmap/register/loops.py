@@ -8,7 +8,10 @@ the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
   ``keyframe_angle`` rad since the last one. Only keyframes keep points (float32: KISS-ICP's
   map down-sampling and each point's line-normal direction); every other scan keeps its
   index, keyframe and pose relative to it (36 bytes), so memory stays small on long tours
-  and the graph has keyframe nodes only.
+  and the graph has keyframe nodes only. A keyframe's own work (down-sampling, normals,
+  descriptor, the step edge's re-match to the keyframe before) is :class:`KeyframeSelector`'s,
+  which needs only the keyframe before: the build runs it where the scans are registered and
+  hands its :class:`ScanRecord` to :meth:`LoopCloser.add_record` in another process.
 * **Place recognition**, each time a keyframe is added, among keyframes at least
   ``min_separation`` keyframes older, best first:
 
@@ -43,7 +46,8 @@ the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
     (free space: a place that only looks alike has walls where the keyframe saw through);
   - the correction it asks of the registration is plausible (``gate_factor``: moved at most
     that times the search radius, turned at most that times 3 σ of the registration's
-    heading over the stretch).
+    heading over the stretch). A candidate whose every guess lies beyond that radius by more
+    than the ICP's reach is not verified at all (``skipped_gate``).
 
   Its covariance is the Hessian's inverse times the residual variance, the keyframe's
   points counted as ``loop_effective_points`` independent ones (scan residuals are
@@ -71,6 +75,7 @@ import logging
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -81,9 +86,11 @@ from ..config import RegistrationConfig
 from ..geometry import se2_apply, se2_between, se2_compose, se2_inverse, wrap_angle
 
 __all__ = [
+    "KeyframeSelector",
     "LoopCloser",
     "LoopConfig",
     "LoopResult",
+    "ScanRecord",
     "descriptor_distance",
     "ring_key",
     "scan_context",
@@ -313,7 +320,9 @@ class _Submap:
         from scipy.spatial import cKDTree
 
         self.points = points
-        self.tree = cKDTree(points)
+        # built for each place verified (hundreds a tour) and queried a few dozen times: the sliding
+        # midpoint split without compaction builds in two thirds of the time and queries as fast
+        self.tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
         self.good = np.isfinite(normal_angles)
         a = np.where(self.good, normal_angles, 0.0)
         self.normals = np.column_stack([np.cos(a), np.sin(a)])
@@ -889,6 +898,150 @@ def _blend_corrections(before: F64, kf: NDArray[np.int64], kf_scan: NDArray[np.i
     return se2_compose(c, before)
 
 
+@dataclass(frozen=True)
+class ScanRecord:
+    """What :class:`KeyframeSelector` makes of one registered scan for :meth:`LoopCloser.add_record`.
+
+    Every scan: its ``index``, ``pose`` (``T_map_base``) and ``keyframe`` flag; a scan that is not a
+    keyframe, its pose ``rel`` in the last keyframe's frame. A keyframe also carries what the loop
+    search needs of it: the distance driven up to it (``dist``) and the heading variance accumulated
+    (``var_yaw``), its step edge from the keyframe before (``step_z``, ``step_info``; None for the first
+    keyframe) and whether that edge was re-matched (``rematched``), its down-sampled points with their
+    line-normal directions (``points``, (M, 3) float32), the ICP source (``source``) and the points
+    fitted (``dense``), in float64, and its descriptor and ring key.
+    """
+
+    index: int
+    pose: F64
+    keyframe: bool
+    rel: F64
+    dist: float = 0.0
+    var_yaw: float = 0.0
+    step_z: F64 | None = None
+    step_info: F64 | None = None
+    rematched: bool | None = None
+    points: NDArray[np.float32] | None = None
+    source: F64 | None = None
+    dense: F64 | None = None
+    desc: NDArray[np.bool_] | None = None
+    key: NDArray[np.float32] | None = None
+    seconds: float = 0.0  # spent on the step edge's re-match
+
+
+class KeyframeSelector:
+    """The loop closer's front end: keyframe selection and each keyframe's own work.
+
+    It takes every registered scan in order (:meth:`make`) and needs only the keyframe before the
+    current one, so it can run where the scans are registered while the loop search
+    (:meth:`LoopCloser.add_record`) runs in another process: the keyframe's down-sampling, line
+    normals and descriptor, and the re-match of its step edge to the keyframe before.
+    """
+
+    def __init__(self, cfg: LoopConfig, reg_cfg: RegistrationConfig | None = None) -> None:
+        self.cfg = cfg
+        reg = reg_cfg if reg_cfg is not None else RegistrationConfig()
+        self._icp_cfg = reg.model_copy(update={"initial_threshold": cfg.icp_threshold})
+        self._prep: Any = None  # a KissMatcher used for down-sampling only (created lazily)
+        self._last_pose: F64 | None = None
+        self._dist = 0.0
+        self._cov = np.zeros((3, 3))  # covariance of the current scan relative to its keyframe
+        self._kf_pose: F64 | None = None  # the last keyframe's pose
+        self._kf_points: NDArray[np.float32] | None = None  # and its points (x, y, normal direction)
+        self._var_yaw = 0.0
+        self.counts = {"rematched": 0, "rematch_kept": 0}
+
+    def make(self, index: int, pose: ArrayLike, points_xy: ArrayLike, info: ArrayLike | None = None) -> ScanRecord:
+        """The record of a registered scan; see :meth:`LoopCloser.add` for the arguments."""
+        p = np.asarray(pose, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"pose must be a finite (x, y, yaw), got {pose!r}")
+        p = np.array([p[0], p[1], wrap_angle(float(p[2]))])
+        cfg = self.cfg
+        if self._last_pose is not None:
+            step = se2_between(self._last_pose, p)
+            self._dist += math.hypot(step[0], step[1])
+            adj = _adjoint(se2_inverse(step))
+            self._cov = adj @ self._cov @ adj.T + self._step_cov(step, info)
+        self._last_pose = p
+        rel = se2_between(self._kf_pose, p) if self._kf_pose is not None else np.zeros(3)
+        if self._kf_pose is not None and math.hypot(rel[0], rel[1]) < cfg.keyframe_distance \
+                and abs(rel[2]) < cfg.keyframe_angle:
+            return ScanRecord(index, p, False, rel)
+        # a new keyframe
+        pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        dense, source = self.prepare(pts)
+        step_z = step_info = None
+        rematched = None
+        seconds = 0.0
+        if self._kf_pose is not None:
+            step_z, step_info = rel, _inverse_spd(self._cov)
+            if cfg.rematch:
+                t0 = time.perf_counter()
+                step_z, step_info, rematched = self._rematch(dense, rel, step_info)
+                self.counts["rematched" if rematched else "rematch_kept"] += 1
+                seconds = time.perf_counter() - t0
+            self._var_yaw += float(self._cov[2, 2])
+        self._cov = np.zeros((3, 3))
+        desc = scan_context(dense, cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
+        points = np.column_stack([dense, _line_normals(dense)]).astype(np.float32)
+        self._kf_pose, self._kf_points = p, points
+        return ScanRecord(index, p, True, np.zeros(3), self._dist, self._var_yaw, step_z, step_info, rematched,
+                          points, source, dense, desc > 0.5, ring_key(desc), seconds)
+
+    def prepare(self, pts: F64) -> tuple[F64, F64]:
+        """(map points (M, 2), ICP source (S, 2)) as KISS-ICP down-samples them."""
+        if pts.shape[0] == 0:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        if self._prep is None:
+            from .kiss import KissMatcher
+
+            self._prep = KissMatcher(self._icp_cfg)
+        prepared = self._prep.prepare(pts)
+        return prepared.map_points[:, :2].copy(), prepared.source[:, :2].copy()
+
+    def _step_cov(self, step: F64, info: ArrayLike | None) -> F64:
+        if info is not None:
+            lam = np.asarray(info, dtype=np.float64).reshape(3, 3)
+            if np.all(np.isfinite(lam)):
+                try:
+                    cov = np.linalg.inv(0.5 * (lam + lam.T))
+                    if np.all(np.linalg.eigvalsh(cov) > 0):
+                        return np.asarray(cov)
+                except np.linalg.LinAlgError:
+                    pass
+            log.debug("step information %s unusable; the default is used", lam.tolist())
+        cfg = self.cfg
+        d = math.hypot(step[0], step[1])
+        var_xy = cfg.odom_sigma_xy ** 2 + cfg.odom_sigma_xy_per_sqrt_m ** 2 * d
+        var_yaw = (cfg.odom_sigma_yaw ** 2 + cfg.odom_sigma_yaw_per_sqrt_m ** 2 * d
+                   + cfg.odom_sigma_yaw_per_sqrt_rad ** 2 * abs(step[2]))
+        return np.diag([var_xy, var_xy, var_yaw])
+
+    def _rematch(self, dense: F64, rel: F64, info: F64) -> tuple[F64, F64, bool]:
+        """The step edge from the last keyframe to the new one: its points (``dense``, base frame) fitted
+        point-to-line to the last keyframe's, from the registration's relative pose ``rel``; and whether
+        the fit was taken.
+
+        Scan-to-map registration matches each scan to everything seen within range; where that map
+        is sparse or holds an earlier pass of the same place, its steps err by decimetres now and
+        then. A direct fit to the previous keyframe is the graph-mapping edge (Kümmerle et al. 2009):
+        on the Intel log it halves the median step error. Taken when it passes the loop tests
+        (inliers, conditioning, RMS); otherwise the registration's step and ``info`` are kept.
+        """
+        cfg = self.cfg
+        assert self._kf_points is not None
+        stored = self._kf_points.astype(np.float64)
+        if stored.shape[0] < cfg.min_points or dense.shape[0] < cfg.min_points:
+            return rel, info, False
+        dense = _thin(dense, cfg.max_query_points)
+        sub = _Submap(stored[:, :2], stored[:, 2])
+        match = _evaluate(sub, dense, _align(sub, dense, rel, cfg), cfg)
+        if match.inliers < cfg.min_inliers or match.condition < cfg.min_condition or match.rms > cfg.max_rms:
+            return rel, info, False
+        return match.pose, _inverse_spd(match.cov), True
+
+
 class LoopCloser:
     """Keyframes, loop detection and verification while a tour is registered; a robust pose graph at the end.
 
@@ -907,7 +1060,7 @@ class LoopCloser:
         self.cfg = cfg
         reg = reg_cfg if reg_cfg is not None else RegistrationConfig()
         self._icp_cfg = reg.model_copy(update={"initial_threshold": cfg.icp_threshold})
-        self._prep: Any = None  # a KissMatcher used for down-sampling only (created lazily)
+        self._front = KeyframeSelector(cfg, reg)  # for add(); add_record() takes records made elsewhere
         self._verifier: Any = None  # the KissMatcher of the verifications (lazily)
         # (keyframe, first, last) -> the submap verified against there (see _place), the latest last
         self._places: OrderedDict[tuple[int, int, int], tuple[F64, _Submap, _Submap, Any] | None] = OrderedDict()
@@ -929,12 +1082,9 @@ class LoopCloser:
         self._loops: list[_Loop] = []
         self._last_loop: _Loop | None = None  # the last loop found, carried forward as a candidate
         self._pending: list[_Loop] = []  # loops verified but not yet confirmed by a second one
-        # the running state
-        self._last_pose: F64 | None = None
-        self._dist = 0.0
-        self._cov = np.zeros((3, 3))  # covariance of the current scan relative to its keyframe
         self._counts = {"candidates": 0, "verified": 0, "accepted": 0, "rejected_inliers": 0,
-                        "rejected_degenerate": 0, "rejected_fit": 0, "rejected_gate": 0, "skipped_retry": 0,
+                        "rejected_degenerate": 0, "rejected_fit": 0, "rejected_gate": 0, "skipped_gate": 0,
+                        "skipped_retry": 0,
                         "unconfirmed": 0, "from_tracked": 0, "from_position": 0, "from_descriptor": 0,
                         "external": 0, "rematched": 0, "rematch_kept": 0}
         self._failed: dict[int, int] = {}  # place (keyframe) -> the keyframe whose verification against it failed
@@ -978,55 +1128,43 @@ class LoopCloser:
         perturbation, in this scan's frame), or None for the configured default.
         A keyframe is searched for loops, and its candidates verified, right away.
         """
-        p = np.asarray(pose, dtype=np.float64).reshape(-1)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ValueError(f"pose must be a finite (x, y, yaw), got {pose!r}")
-        p = np.array([p[0], p[1], wrap_angle(float(p[2]))])
+        self.add_record(self._front.make(index, pose, points_xy, info))
+
+    def add_record(self, rec: ScanRecord) -> None:
+        """Add a scan as a :class:`KeyframeSelector` of the same settings made it, in order: what
+        :meth:`add` does after the keyframe's own work, which may thus run in another process."""
         cfg = self.cfg
-        if self._last_pose is not None:
-            step = se2_between(self._last_pose, p)
-            d = math.hypot(step[0], step[1])
-            self._dist += d
-            adj = _adjoint(se2_inverse(step))
-            self._cov = adj @ self._cov @ adj.T + self._step_cov(step, info)
-        self._last_pose = p
         n_kf = self._kf_pose.n
-        rel = se2_between(self._kf_pose.view[-1], p) if n_kf else np.zeros(3)
-        if n_kf and math.hypot(rel[0], rel[1]) < cfg.keyframe_distance and abs(rel[2]) < cfg.keyframe_angle:
-            self._scan_index.append(index)
+        if not rec.keyframe:
+            if n_kf == 0:
+                raise ValueError("the first scan added must be a keyframe")
+            self._scan_index.append(rec.index)
             self._scan_kf.append(n_kf - 1)
-            self._scan_rel.append(rel)
+            self._scan_rel.append(rec.rel)
             return
-        # a new keyframe
-        pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        prepared = self._prepare(pts)
-        var_yaw = 0.0
+        assert rec.points is not None and rec.source is not None and rec.dense is not None
+        assert rec.desc is not None and rec.key is not None
         if n_kf:
-            z, info = rel, _inverse_spd(self._cov)
-            if cfg.rematch:
-                t0 = time.perf_counter()
-                z, info = self._rematch(n_kf - 1, prepared[0], rel, info)
-                self._seconds_rematch += time.perf_counter() - t0
-            self._odom_z.append(z)
-            self._odom_info.append(info.ravel())
-            var_yaw = float(self._kf_var_yaw.view[-1, 0] + self._cov[2, 2])
-        self._cov = np.zeros((3, 3))
-        self._scan_index.append(index)
+            if rec.step_z is None or rec.step_info is None:
+                raise ValueError("a keyframe after the first needs its step edge")
+            self._odom_z.append(rec.step_z)
+            self._odom_info.append(np.asarray(rec.step_info).ravel())
+            if rec.rematched is not None:
+                self._counts["rematched" if rec.rematched else "rematch_kept"] += 1
+            self._seconds_rematch += rec.seconds
+        self._scan_index.append(rec.index)
         self._scan_kf.append(n_kf)
         self._scan_rel.append(np.zeros(3))
-        self._kf_pose.append(p)
-        self._kf_dist.append(self._dist)
-        self._kf_var_yaw.append(var_yaw)
-        self._kf_scan.append(index)
-        desc = scan_context(prepared[0], cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
-        self._kf_desc.append(desc > 0.5)
-        self._kf_key.append(ring_key(desc))
-        normals = _line_normals(prepared[0])
-        self._kf_points.append(np.column_stack([prepared[0], normals]).astype(np.float32))
-        if prepared[1].shape[0] >= cfg.min_points:
+        self._kf_pose.append(rec.pose)
+        self._kf_dist.append(rec.dist)
+        self._kf_var_yaw.append(rec.var_yaw)
+        self._kf_scan.append(rec.index)
+        self._kf_desc.append(rec.desc)
+        self._kf_key.append(rec.key)
+        self._kf_points.append(rec.points)
+        if rec.source.shape[0] >= cfg.min_points:
             t0 = time.perf_counter()
-            self._search(n_kf, prepared[1], prepared[0])
+            self._search(n_kf, rec.source, rec.dense)
             self._seconds_search += time.perf_counter() - t0
 
     def add_loop(self, index_a: int, index_b: int, t_a_b: ArrayLike, info: ArrayLike) -> None:
@@ -1058,7 +1196,8 @@ class LoopCloser:
         (ICP runs); ``accepted`` (loops that passed verification: ``from_tracked``,
         ``from_position``, ``from_descriptor``) and ``external``; rejected at verification:
         ``rejected_inliers``, ``rejected_degenerate``, ``rejected_fit`` (RMS or free space),
-        ``rejected_gate``; ``skipped_retry``; ``unconfirmed`` (never joined the graph);
+        ``rejected_gate``; not verified: ``skipped_gate`` (every guess beyond the gate already),
+        ``skipped_retry``; ``unconfirmed`` (never joined the graph);
         rejected by the solve: ``rejected_pairwise``, ``rejected_after_solve``; ``loops``
         (kept); ``seconds_search``, ``seconds_solve``, ``solver_evaluations``;
         ``max_correction_m`` and ``max_correction_rad`` (largest change of a scan's pose);
@@ -1114,64 +1253,11 @@ class LoopCloser:
         return LoopResult(out, stats, [(int(kf_scan[lp.a]), int(kf_scan[lp.b])) for lp in kept])
 
     # -- keyframes -----------------------------------------------------------------------------
-    def _step_cov(self, step: F64, info: ArrayLike | None) -> F64:
-        if info is not None:
-            lam = np.asarray(info, dtype=np.float64).reshape(3, 3)
-            if np.all(np.isfinite(lam)):
-                try:
-                    cov = np.linalg.inv(0.5 * (lam + lam.T))
-                    if np.all(np.linalg.eigvalsh(cov) > 0):
-                        return np.asarray(cov)
-                except np.linalg.LinAlgError:
-                    pass
-            log.debug("step information %s unusable; the default is used", lam.tolist())
-        cfg = self.cfg
-        d = math.hypot(step[0], step[1])
-        var_xy = cfg.odom_sigma_xy ** 2 + cfg.odom_sigma_xy_per_sqrt_m ** 2 * d
-        var_yaw = (cfg.odom_sigma_yaw ** 2 + cfg.odom_sigma_yaw_per_sqrt_m ** 2 * d
-                   + cfg.odom_sigma_yaw_per_sqrt_rad ** 2 * abs(step[2]))
-        return np.diag([var_xy, var_xy, var_yaw])
-
-    def _prepare(self, pts: F64) -> tuple[F64, F64]:
-        """(map points (M, 2), ICP source (S, 2)) as KISS-ICP down-samples them."""
-        if pts.shape[0] == 0:
-            return np.zeros((0, 2)), np.zeros((0, 2))
-        if self._prep is None:
-            from .kiss import KissMatcher
-
-            self._prep = KissMatcher(self._icp_cfg)
-        prepared = self._prep.prepare(pts)
-        return prepared.map_points[:, :2].copy(), prepared.source[:, :2].copy()
-
     def _scan_pos(self, index: int) -> int:
         hits = np.flatnonzero(self._scan_index.view[:, 0] == index)
         if hits.size == 0:
             raise KeyError(f"no scan numbered {index} was added")
         return int(hits[-1])
-
-    def _rematch(self, j: int, dense: F64, rel: F64, info: F64) -> tuple[F64, F64]:
-        """The step edge from keyframe ``j`` to the new one: its points (``dense``, base frame) fitted
-        point-to-line to keyframe j's, from the registration's relative pose ``rel``.
-
-        Scan-to-map registration matches each scan to everything seen within range; where that map
-        is sparse or holds an earlier pass of the same place, its steps err by decimetres now and
-        then. A direct fit to the previous keyframe is the graph-mapping edge (Kümmerle et al. 2009):
-        on the Intel log it halves the median step error. Taken when it passes the loop tests
-        (inliers, conditioning, RMS); otherwise the registration's step and ``info`` are kept.
-        """
-        cfg = self.cfg
-        stored = self._kf_points[j].astype(np.float64)
-        if stored.shape[0] < cfg.min_points or dense.shape[0] < cfg.min_points:
-            self._counts["rematch_kept"] += 1
-            return rel, info
-        dense = _thin(dense, cfg.max_query_points)
-        sub = _Submap(stored[:, :2], stored[:, 2])
-        match = _evaluate(sub, dense, _align(sub, dense, rel, cfg), cfg)
-        if match.inliers < cfg.min_inliers or match.condition < cfg.min_condition or match.rms > cfg.max_rms:
-            self._counts["rematch_kept"] += 1
-            return rel, info
-        self._counts["rematched"] += 1
-        return match.pose, _inverse_spd(match.cov)
 
     # -- loop detection ------------------------------------------------------------------------
     def _search(self, k: int, source: F64, dense: F64) -> None:
@@ -1189,14 +1275,12 @@ class LoopCloser:
             follow = self._follow(self._last_loop, k, last)
             if follow is not None:
                 tracked.append((follow[0], follow[1], "tracked"))
-        by_position: list[tuple[int, F64, str]] = []
         dist = np.hypot(old[:, 0] - pk[0], old[:, 1] - pk[1])
         radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[: last + 1, 0])
         near_idx = np.flatnonzero(dist <= radius)
         near_idx = near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]
         near_idx = near_idx[: 10 * cfg.max_candidates * max(cfg.submap_keyframes, 1)]  # enough for the places
-        for j, guess in zip(near_idx.tolist(), se2_between(old[near_idx], pk)):
-            by_position.append((j, guess, "position"))
+        near_guess = se2_between(old[near_idx], pk)
         by_descriptor: list[tuple[int, F64, str]] = []
         if cfg.descriptor:
             keys = self._kf_key.view[: last + 1]
@@ -1209,20 +1293,34 @@ class LoopCloser:
             for i in np.argsort(dd):
                 if dd[i] <= cfg.descriptor_threshold:
                     by_descriptor.append((int(pre[i]), np.array([0.0, 0.0, float(yaw[i])]), "descriptor"))
+        self._failed = {j: kf for j, kf in self._failed.items() if k - kf <= cfg.retry_keyframes}
+        # places near one that failed a moment ago (the view has hardly changed) are not tried again
+        n_sub = cfg.submap_keyframes
+        blocked = np.zeros(last + 1 + n_sub, dtype=bool)
+        for jf in self._failed:
+            blocked[max(0, jf - n_sub): jf + n_sub + 1] = True
         # tracked first, then descriptor and position interleaved; candidates in one neighbourhood
         # form one place, verified once with each of their guesses
-        merged = list(tracked)
-        for i in range(max(len(by_position), len(by_descriptor))):
-            merged += [lst[i] for lst in (by_descriptor, by_position) if i < len(lst)]
-        self._failed = {j: kf for j, kf in self._failed.items() if k - kf <= cfg.retry_keyframes}
         places: list[tuple[int, list[F64], list[str]]] = []
-        for j, guess, kind in merged:
-            home = next((pl for pl in places if abs(pl[0] - j) <= cfg.submap_keyframes), None)
+
+        def merged() -> Iterator[tuple[int, F64, str]]:
+            yield from tracked
+            for i in range(max(near_idx.shape[0], len(by_descriptor))):
+                if i < len(by_descriptor):
+                    yield by_descriptor[i]
+                if i < near_idx.shape[0]:
+                    if (i >= len(by_descriptor) and len(places) >= cfg.max_candidates
+                            and all(len(pl[1]) >= 3 or "position" in pl[2] for pl in places)):
+                        return  # only position candidates are left, and no place takes another
+                    yield int(near_idx[i]), near_guess[i], "position"
+
+        for j, guess, kind in merged():
+            home = next((pl for pl in places if abs(pl[0] - j) <= n_sub), None)
             if home is None:
                 if len(places) >= cfg.max_candidates:
                     break
-                if kind != "tracked" and any(abs(jf - j) <= cfg.submap_keyframes for jf in self._failed):
-                    self._counts["skipped_retry"] += 1  # failed a moment ago: the view has hardly changed
+                if kind != "tracked" and blocked[j]:
+                    self._counts["skipped_retry"] += 1
                     continue
                 places.append((j, [guess], [kind]))
             elif len(home[1]) < 3 and kind not in home[2]:  # the guess in the home keyframe's frame
@@ -1272,7 +1370,7 @@ class LoopCloser:
             stored = self._kf_points[k][:, :2].astype(np.float64)
             if follow is None or stored.shape[0] < cfg.min_points:
                 break
-            source = self._prepare(stored)[1]
+            source = self._front.prepare(stored)[1]
             self._counts["candidates"] += 1
             found = self._verify(follow[0], k, source, stored, [follow[1]], ["tracked"])
             if found is None:
@@ -1322,32 +1420,27 @@ class LoopCloser:
         """The submap around keyframe ``j`` (keyframes ``lo`` to ``hi``, in j's frame): its points with their
         normal directions, their search trees (all of them, and the fine fit's) and KISS-ICP's voxel map; kept
         for the next verifications. None: too few points."""
-        from .kiss import PreparedScan
-
         cfg = self.cfg
         poses = self._kf_pose.view
         rel = se2_between(poses[j], poses[lo: hi + 1])
-        voxel_map = matcher.new_map()
-        parts: list[F64] = []  # (M, 3): x, y, normal direction in j's frame
-        fine: list[F64] = []
-        for i, r in zip(range(lo, hi + 1), rel):
-            stored = self._kf_points[i].astype(np.float64)
-            if stored.shape[0] == 0:
-                continue
-            p3 = np.zeros((stored.shape[0], 3))
-            p3[:, :2] = stored[:, :2]
-            matcher.update_map(PreparedScan(p3, p3), r, voxel_map)
-            parts.append(np.column_stack([se2_apply(r, stored[:, :2]), stored[:, 2] + r[2]]))
-            if abs(i - j) <= cfg.refine_keyframes:
-                fine.append(parts[-1])
+        stored = [self._kf_points[i] for i in range(lo, hi + 1)]
+        counts = np.array([p.shape[0] for p in stored])
         place: tuple[F64, _Submap, _Submap, Any] | None = None
-        if sum(p.shape[0] for p in parts) >= cfg.min_points:
-            whole = np.concatenate(parts)
+        if counts.sum() >= cfg.min_points:
+            pts = np.concatenate(stored).astype(np.float64)
+            at = np.repeat(rel, counts, axis=0)  # each point's keyframe pose in j's frame
+            c, s = np.cos(at[:, 2]), np.sin(at[:, 2])
+            whole = np.column_stack([at[:, 0] + c * pts[:, 0] - s * pts[:, 1],
+                                     at[:, 1] + s * pts[:, 0] + c * pts[:, 1], pts[:, 2] + at[:, 2]])
+            voxel_map = self._voxel_map(matcher, stored, rel, whole, counts)
             sub = _Submap(whole[:, :2], whole[:, 2])
             # the registration's drift bends a long submap: the final fit is to the candidate's close neighbours
-            if fine and len(fine) < len(parts):
-                near = np.concatenate(fine)
-                sub_fine = _Submap(near[:, :2], near[:, 2])
+            first = max(lo, j - cfg.refine_keyframes) - lo
+            last = min(hi, j + cfg.refine_keyframes) - lo
+            if first > 0 or last < hi - lo:
+                start = int(counts[:first].sum())
+                near = whole[start: start + int(counts[first: last + 1].sum())]
+                sub_fine = _Submap(near[:, :2], near[:, 2]) if near.shape[0] else sub
             else:
                 sub_fine = sub
             place = (whole, sub, sub_fine, voxel_map)
@@ -1355,6 +1448,32 @@ class LoopCloser:
         if len(self._places) > self.PLACES_KEPT:
             self._places.popitem(last=False)
         return place
+
+    def _voxel_map(self, matcher: Any, stored: list[NDArray[np.float32]], rel: F64, whole: F64,
+                   counts: NDArray[np.int64]) -> Any:
+        """KISS-ICP's voxel map of a submap, its keyframes inserted in order as the registration would.
+
+        Each insertion also drops the voxels farther than ``max_range`` from that keyframe. When no
+        point lies that far from a keyframe inserted after (or with) it, nothing is dropped and the
+        points (``whole``, already in the submap's frame) go in with one call; else one by one."""
+        from .kiss import PreparedScan
+
+        voxel_map = matcher.new_map()
+        owner = np.repeat(np.arange(len(stored)), counts)
+        d2 = (whole[:, None, 0] - rel[None, :, 0]) ** 2 + (whole[:, None, 1] - rel[None, :, 1]) ** 2  # (M, K)
+        later = np.arange(len(stored))[None, :] >= owner[:, None]
+        reach = 0.99 * self._icp_cfg.max_range
+        if not np.any(later & (d2 >= reach * reach)):
+            p3 = np.zeros((whole.shape[0], 3))
+            p3[:, :2] = whole[:, :2]
+            voxel_map.add_points(p3)
+            return voxel_map
+        for pts, r in zip(stored, rel):
+            if pts.shape[0]:
+                p3 = np.zeros((pts.shape[0], 3))
+                p3[:, :2] = pts[:, :2]
+                matcher.update_map(PreparedScan(p3, p3), r, voxel_map)
+        return voxel_map
 
     def _verify(self, j: int, k: int, source: F64, dense: F64, guesses: list[F64], kinds: list[str]
                 ) -> _Loop | None:
@@ -1365,6 +1484,18 @@ class LoopCloser:
         n = cfg.submap_keyframes
         lo = max(0, j - n)
         hi = max(j, min(j + n, k - n - 1))
+        poses = self._kf_pose.view
+        radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[j, 0])
+        if cfg.gate_factor > 0:
+            # a guess already farther from where the registration put keyframe k than the gate allows,
+            # by more than the ICP's reach (its correspondences and the fine fit's), cannot pass it:
+            # descriptor candidates at the far side of a building, some 7 % of Intel's verifications
+            reach = cfg.gate_factor * radius + 3.0 * (cfg.icp_threshold + cfg.inlier_distance)
+            said = se2_apply(poses[j], np.array([g[:2] for g in guesses]))
+            if np.all(np.hypot(said[:, 0] - poses[k, 0], said[:, 1] - poses[k, 1]) > reach):
+                self._counts["skipped_gate"] += 1
+                log.debug("loop %d-%d: every guess beyond the gate", j, k)
+                return None
         if self._verifier is None:  # one matcher for its settings: each place keeps a map of its own
             self._verifier = KissMatcher(self._icp_cfg)
         matcher = self._verifier
@@ -1377,7 +1508,6 @@ class LoopCloser:
             return None
         self._counts["verified"] += 1
         whole, sub, sub_fine, voxel_map = place
-        poses = self._kf_pose.view
         full_query = dense
         dense = _thin(dense, cfg.max_query_points)
         q3 = np.zeros((source.shape[0], 3))
@@ -1422,7 +1552,6 @@ class LoopCloser:
             # times the search radius away, and turned by at most gate_factor times three standard
             # deviations of the registration's heading over the stretch (plus 0.05 rad)
             said = se2_compose(poses[j], best.pose)
-            radius = cfg.search_radius + cfg.drift_per_m * (self._kf_dist.view[k, 0] - self._kf_dist.view[j, 0])
             yaw_sd = math.sqrt(max(float(self._kf_var_yaw.view[k, 0] - self._kf_var_yaw.view[j, 0]), 0.0))
             turn = abs(float(wrap_angle(float(said[2] - poses[k, 2]))))
             if (math.hypot(said[0] - poses[k, 0], said[1] - poses[k, 1]) > cfg.gate_factor * radius

@@ -37,9 +37,11 @@ Modes (:class:`~semmap.config.RegistrationConfig` ``mode``):
 With ``loop_closure.enabled``, every registered scan also goes to a
 :class:`~semmap.register.loops.LoopCloser`; :meth:`Registrar.close_loops` solves its pose graph
 at the end of the tour. The loop closer needs nothing back until then, so it may run elsewhere
-(``Registrar(cfg, close_loops_here=False)``: each scan's points are left in
-:attr:`Registrar.loop_points` for it; the build runs it in the fusion worker, off the
-registration's critical path).
+(``Registrar(cfg, close_loops_here=False)``: each scan's keyframe record, made here by a
+:class:`~semmap.register.loops.KeyframeSelector` (keyframe selection, down-sampling, normals,
+descriptor and the step edge's re-match), is left in :attr:`Registrar.loop_record` for
+:meth:`~semmap.register.loops.LoopCloser.add_record`; the build runs the loop search in the fusion
+worker, off the registration's critical path, and this process has the time for the rest).
 
 With ``exclude_dynamic``, points painted :attr:`~semmap.records.Mobility.DYNAMIC`
 are neither matched nor inserted into the local map. Only beams with ``hit`` set
@@ -100,21 +102,28 @@ def registration_speed(scans: int, seconds: float) -> dict[str, Any]:
     return {"seconds": round(seconds, 3), "scans_per_s": round(scans / seconds, 1) if seconds > 0 else None}
 
 
-def loop_closer(cfg: RegistrationConfig) -> Any:
-    """The :class:`~semmap.register.loops.LoopCloser` ``cfg.loop_closure`` asks for (None: off). It takes each
-    registered scan's pose and down-sampled points and needs nothing back until the end of the tour, so it may
-    run in another process than the registration (the build's fusion worker, idle while loop closure defers
-    fusion to the end)."""
-    if not cfg.loop_closure.enabled:
-        return None
-    from .loops import LoopCloser, LoopConfig
+def loop_config(cfg: RegistrationConfig) -> Any:
+    """The :class:`~semmap.register.loops.LoopConfig` of ``cfg.loop_closure``."""
+    from .loops import LoopConfig
 
     lc = cfg.loop_closure
-    return LoopCloser(LoopConfig(
+    return LoopConfig(
         keyframe_distance=lc.keyframe_distance, keyframe_angle=lc.keyframe_angle,
         min_separation=lc.min_separation, search_radius=lc.search_radius, drift_per_m=lc.drift_per_m,
         descriptor=lc.descriptor, min_inliers=lc.min_inliers, inlier_distance=lc.inlier_distance,
-        rematch=lc.rematch), cfg)
+        rematch=lc.rematch)
+
+
+def loop_closer(cfg: RegistrationConfig) -> Any:
+    """The :class:`~semmap.register.loops.LoopCloser` ``cfg.loop_closure`` asks for (None: off). It takes each
+    registered scan's pose and down-sampled points, or their :class:`~semmap.register.loops.ScanRecord`, and
+    needs nothing back until the end of the tour, so it may run in another process than the registration (the
+    build's fusion worker, idle while loop closure defers fusion to the end)."""
+    if not cfg.loop_closure.enabled:
+        return None
+    from .loops import LoopCloser
+
+    return LoopCloser(loop_config(cfg), cfg)
 
 
 def solve_loops(closer: Any) -> tuple[NDArray[np.float64], dict[str, Any]]:
@@ -144,8 +153,14 @@ class Registrar:
         self._closer: Any = loop_closer(cfg) if close_loops_here else None
         self._loop_stats: dict[str, Any] | None = None
         #: with loop closure run elsewhere (``close_loops_here=False``): the last registered scan's
-        #: down-sampled points (base frame), for that :class:`~semmap.register.loops.LoopCloser`'s ``add``
-        self.loop_points: NDArray[np.float64] | None = None
+        #: :class:`~semmap.register.loops.ScanRecord`, for that :class:`~semmap.register.loops.LoopCloser`'s
+        #: ``add_record``
+        self.loop_record: Any = None
+        self._selector: Any = None
+        if not close_loops_here and cfg.loop_closure.enabled:
+            from .loops import KeyframeSelector
+
+            self._selector = KeyframeSelector(loop_config(cfg), cfg)
         self._ekf: Se2Ekf | None = Se2Ekf(cfg.ekf) if cfg.mode == "fused" else None
         rf = cfg.refine
         self._refiner: LineRefiner | None = LineRefiner(neighbours=rf.neighbours) \
@@ -239,7 +254,7 @@ class Registrar:
             if self._closer is not None:
                 self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])
             else:
-                self.loop_points = prep.scan.map_points[:, :2]
+                self.loop_record = self._selector.make(self._counts["scans"], pose, prep.scan.map_points[:, :2])
         if self._pose is not None:
             self._velocity = se2_between(self._pose, pose)
             self._driven += float(np.hypot(self._velocity[0], self._velocity[1]))

@@ -958,7 +958,6 @@ class KeyframeSelector:
         self._kf_pose: F64 | None = None  # the last keyframe's pose
         self._kf_points: NDArray[np.float32] | None = None  # and its points (x, y, normal direction)
         self._var_yaw = 0.0
-        self.counts = {"rematched": 0, "rematch_kept": 0}
 
     def make(self, index: int, pose: ArrayLike, points_xy: ArrayLike, info: ArrayLike | None = None) -> ScanRecord:
         """The record of a registered scan; see :meth:`LoopCloser.add` for the arguments."""
@@ -989,7 +988,6 @@ class KeyframeSelector:
             if cfg.rematch:
                 t0 = time.perf_counter()
                 step_z, step_info, rematched = self._rematch(dense, rel, step_info)
-                self.counts["rematched" if rematched else "rematch_kept"] += 1
                 seconds = time.perf_counter() - t0
             self._var_yaw += float(self._cov[2, 2])
         self._cov = np.zeros((3, 3))

@@ -9,9 +9,10 @@ the end returns corrected poses for all of them (:meth:`LoopCloser.optimise`).
   map down-sampling and each point's line-normal direction); every other scan keeps its
   index, keyframe and pose relative to it (36 bytes), so memory stays small on long tours
   and the graph has keyframe nodes only. A keyframe's own work (down-sampling, normals,
-  descriptor, the step edge's re-match to the keyframe before) is :class:`KeyframeSelector`'s,
-  which needs only the keyframe before: the build runs it where the scans are registered and
-  hands its :class:`ScanRecord` to :meth:`LoopCloser.add_record` in another process.
+  descriptor and its matches, the step edge's re-match to the keyframe before) is
+  :class:`KeyframeSelector`'s, which needs nothing the search learns: the build runs it where the
+  scans are registered and hands its :class:`ScanRecord` to :meth:`LoopCloser.add_record` in
+  another process.
 * **Place recognition**, each time a keyframe is added, among keyframes at least
   ``min_separation`` keyframes older, best first:
 
@@ -918,7 +919,9 @@ class ScanRecord:
     (``var_yaw``), its step edge from the keyframe before (``step_z``, ``step_info``; None for the first
     keyframe) and whether that edge was re-matched (``rematched``), its down-sampled points with their
     line-normal directions (``points``, (M, 3) float32), the ICP source (``source``) and the points
-    fitted (``dense``), in float64, and its descriptor and ring key.
+    fitted (``dense``), in float64, and the older keyframes its descriptor matched (``descriptor_matches``,
+    (D, 2): keyframe number and the yaw of this keyframe in its frame, best first; see
+    :meth:`KeyframeSelector.descriptor_matches`).
     """
 
     index: int
@@ -933,8 +936,7 @@ class ScanRecord:
     points: NDArray[np.float32] | None = None
     source: F64 | None = None
     dense: F64 | None = None
-    desc: NDArray[np.bool_] | None = None
-    key: NDArray[np.float32] | None = None
+    descriptor_matches: F64 | None = None
     seconds: float = 0.0  # spent on the step edge's re-match
 
 
@@ -944,7 +946,9 @@ class KeyframeSelector:
     It takes every registered scan in order (:meth:`make`) and needs only the keyframe before the
     current one, so it can run where the scans are registered while the loop search
     (:meth:`LoopCloser.add_record`) runs in another process: the keyframe's down-sampling, line
-    normals and descriptor, and the re-match of its step edge to the keyframe before.
+    normals and descriptor, the re-match of its step edge to the keyframe before, and the place
+    recognition by descriptor, which needs every keyframe's descriptor (1.2 kB each, kept here) but
+    nothing the search learns.
     """
 
     def __init__(self, cfg: LoopConfig, reg_cfg: RegistrationConfig | None = None) -> None:
@@ -958,6 +962,8 @@ class KeyframeSelector:
         self._kf_pose: F64 | None = None  # the last keyframe's pose
         self._kf_points: NDArray[np.float32] | None = None  # and its points (x, y, normal direction)
         self._var_yaw = 0.0
+        self._keys = _Buffer(cfg.descriptor_rings, np.float32)  # every keyframe's ring key
+        self._descs: list[NDArray[np.bool_]] = []  # and descriptor (0/1 cells, kept as bool)
 
     def make(self, index: int, pose: ArrayLike, points_xy: ArrayLike, info: ArrayLike | None = None) -> ScanRecord:
         """The record of a registered scan; see :meth:`LoopCloser.add` for the arguments."""
@@ -992,10 +998,38 @@ class KeyframeSelector:
             self._var_yaw += float(self._cov[2, 2])
         self._cov = np.zeros((3, 3))
         desc = scan_context(dense, cfg.descriptor_rings, cfg.descriptor_sectors, cfg.descriptor_range)
+        self._descs.append(desc > 0.5)
+        self._keys.append(ring_key(desc))
         points = np.column_stack([dense, _line_normals(dense)]).astype(np.float32)
         self._kf_pose, self._kf_points = p, points
         return ScanRecord(index, p, True, np.zeros(3), self._dist, self._var_yaw, step_z, step_info, rematched,
-                          points, source, dense, desc > 0.5, ring_key(desc), seconds)
+                          points, source, dense, self.descriptor_matches(len(self._descs) - 1), seconds)
+
+    def descriptor_matches(self, k: int) -> F64:
+        """The keyframes at least ``min_separation`` older than keyframe ``k`` that its descriptor matches:
+        (D, 2) keyframe numbers and yaws (of k's frame in theirs, from the best column shift), best first.
+
+        The ``descriptor_preselect`` nearest ring keys (rotation invariant; brute force: exact, and at 20
+        dimensions as fast as a KD-tree) are compared column by column; those within
+        ``descriptor_threshold`` are kept."""
+        cfg = self.cfg
+        last = k - cfg.min_separation
+        if not cfg.descriptor or last < 0 or cfg.max_candidates == 0:
+            return np.zeros((0, 2))
+        keys = self._keys.view[: last + 1]
+        kd = np.sum((keys - self._keys.view[k]) ** 2, axis=1)
+        m = min(cfg.descriptor_preselect, kd.shape[0])
+        pre = np.argpartition(kd, m - 1)[:m]
+        dd, yaw = descriptor_distance(self._descs[k].astype(np.float32),
+                                      np.stack([self._descs[j] for j in pre]).astype(np.float32))
+        order = np.argsort(dd)
+        order = order[dd[order] <= cfg.descriptor_threshold]
+        return np.column_stack([pre[order].astype(np.float64), yaw[order]])
+
+    def memory_bytes(self) -> int:
+        """Bytes held: every keyframe's descriptor and ring key, and the last keyframe's points."""
+        total = sum(int(d.nbytes) for d in self._descs) + self._keys.nbytes
+        return total + (0 if self._kf_points is None else int(self._kf_points.nbytes))
 
     def prepare(self, pts: F64) -> tuple[F64, F64]:
         """(map points (M, 2), ICP source (S, 2)) as KISS-ICP down-samples them."""
@@ -1081,8 +1115,6 @@ class LoopCloser:
         self._kf_dist = _Buffer(1)  # distance driven up to the keyframe, m
         self._kf_var_yaw = _Buffer(1)  # the registration's heading variance accumulated up to the keyframe, rad²
         self._kf_scan = _Buffer(1, np.int64)  # the keyframe's scan index
-        self._kf_key = _Buffer(cfg.descriptor_rings, np.float32)
-        self._kf_desc: list[NDArray[np.bool_]] = []  # the descriptors (0/1 cells, kept as bool)
         # (M, 3) float32 per keyframe: base-frame x, y (KISS-ICP's map down-sampling) and line-normal direction
         self._kf_points: list[NDArray[np.float32]] = []
         self._odom_z = _Buffer(3)  # T_{kf-1}_kf
@@ -1118,11 +1150,11 @@ class LoopCloser:
     def memory_bytes(self) -> int:
         """Approximate bytes held: keyframe points and descriptors, per-scan and per-keyframe arrays, and the
         points of the places kept for verification (not their search trees and voxel maps)."""
-        total = sum(int(p.nbytes) for p in self._kf_points) + sum(int(d.nbytes) for d in self._kf_desc)
+        total = sum(int(p.nbytes) for p in self._kf_points) + self._front.memory_bytes()
         total += sum(int(pl[0].nbytes + pl[1].points.nbytes + pl[1].normals.nbytes)
                      for pl in self._places.values() if pl is not None)
         for buf in (self._scan_index, self._scan_kf, self._scan_rel, self._kf_pose, self._kf_dist, self._kf_var_yaw,
-                    self._kf_scan, self._kf_key, self._odom_z, self._odom_info):
+                    self._kf_scan, self._odom_z, self._odom_info):
             total += buf.nbytes
         return total
 
@@ -1151,7 +1183,7 @@ class LoopCloser:
             self._scan_rel.append(rec.rel)
             return
         assert rec.points is not None and rec.source is not None and rec.dense is not None
-        assert rec.desc is not None and rec.key is not None
+        assert rec.descriptor_matches is not None
         if n_kf:
             if rec.step_z is None or rec.step_info is None:
                 raise ValueError("a keyframe after the first needs its step edge")
@@ -1167,12 +1199,10 @@ class LoopCloser:
         self._kf_dist.append(rec.dist)
         self._kf_var_yaw.append(rec.var_yaw)
         self._kf_scan.append(rec.index)
-        self._kf_desc.append(rec.desc)
-        self._kf_key.append(rec.key)
         self._kf_points.append(rec.points)
         if rec.source.shape[0] >= cfg.min_points:
             t0 = time.perf_counter()
-            self._search(n_kf, rec.source, rec.dense)
+            self._search(n_kf, rec.source, rec.dense, rec.descriptor_matches)
             self._seconds_search += time.perf_counter() - t0
 
     def add_loop(self, index_a: int, index_b: int, t_a_b: ArrayLike, info: ArrayLike) -> None:
@@ -1268,8 +1298,9 @@ class LoopCloser:
         return int(hits[-1])
 
     # -- loop detection ------------------------------------------------------------------------
-    def _search(self, k: int, source: F64, dense: F64) -> None:
-        """Find and verify loop candidates for keyframe ``k`` (ICP source and dense points, base frame)."""
+    def _search(self, k: int, source: F64, dense: F64, descriptor_matches: F64) -> None:
+        """Find and verify loop candidates for keyframe ``k`` (ICP source and dense points, base frame; the
+        older keyframes its descriptor matched, see :meth:`KeyframeSelector.descriptor_matches`)."""
         cfg = self.cfg
         last = k - cfg.min_separation
         if last < 0 or cfg.max_candidates == 0:
@@ -1289,18 +1320,7 @@ class LoopCloser:
         near_idx = near_idx[np.argsort(dist[near_idx] / np.maximum(radius[near_idx], 1e-9))]
         near_idx = near_idx[: 10 * cfg.max_candidates * max(cfg.submap_keyframes, 1)]  # enough for the places
         near_guess = se2_between(old[near_idx], pk)
-        by_descriptor: list[tuple[int, F64, str]] = []
-        if cfg.descriptor:
-            keys = self._kf_key.view[: last + 1]
-            # brute force over the ring keys: exact, and at 20 dimensions as fast as a KD-tree
-            kd = np.sum((keys - self._kf_key.view[k]) ** 2, axis=1)
-            m = min(cfg.descriptor_preselect, kd.shape[0])
-            pre = np.argpartition(kd, m - 1)[:m]
-            dd, yaw = descriptor_distance(self._kf_desc[k].astype(np.float32),
-                                          np.stack([self._kf_desc[j] for j in pre]).astype(np.float32))
-            for i in np.argsort(dd):
-                if dd[i] <= cfg.descriptor_threshold:
-                    by_descriptor.append((int(pre[i]), np.array([0.0, 0.0, float(yaw[i])]), "descriptor"))
+        by_descriptor = [(int(j), np.array([0.0, 0.0, float(yaw)]), "descriptor") for j, yaw in descriptor_matches]
         self._failed = {j: kf for j, kf in self._failed.items() if k - kf <= cfg.retry_keyframes}
         # places near one that failed a moment ago (the view has hardly changed) are not tried again
         n_sub = cfg.submap_keyframes

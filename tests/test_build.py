@@ -90,15 +90,19 @@ def test_loop_closure_in_the_fusion_worker_gives_the_map_one_process_gives(demo_
 
 
 def test_the_loop_closure_line_says_whether_loops_closed_and_why_not():
-    stats = {"keyframes": 40, "verified": 12, "loops": [[1, 35], [2, 36]], "max_correction_m": 0.213,
-             "max_correction_rad": 0.04, "rematch_kept": 30}
+    stats = {"keyframes": 40, "candidates": 14, "verified": 12, "loops": [[1, 35], [2, 36]],
+             "max_correction_m": 0.213, "max_correction_rad": 0.04, "rematched": 30, "rematch_kept": 9}
     assert loops_line({"mode": "fused"}) is None  # loop closure off
+    # (the steps re-fitted are those whose re-fit was taken, not those that kept the registration's step)
     assert loops_line({"loop_closure": stats}) == ("2 loops closed (12 places verified among 40 keyframes), largest "
                                                    "correction 0.21 m and 2.3°; 30 of 39 keyframe steps re-fitted "
                                                    "to the keyframe before")
-    assert loops_line({"loop_closure": {**stats, "loops": [], "rematch_kept": 0}}) == (
+    assert loops_line({"loop_closure": {**stats, "loops": [], "rematched": 0}}) == (
         "no loop found (12 places verified among 40 keyframes, none matched well enough)")
-    assert loops_line({"loop_closure": {**stats, "loops": [], "verified": 0, "rematch_kept": 0}}) == (
+    # places found, each beyond the gate before any ICP: the tour did come back near them
+    assert loops_line({"loop_closure": {**stats, "loops": [], "verified": 0, "rematched": 0}}) == (
+        "no loop found (0 places verified among 40 keyframes, none matched well enough)")
+    assert loops_line({"loop_closure": {**stats, "loops": [], "candidates": 0, "verified": 0, "rematched": 0}}) == (
         "no loop found (the tour came back to no place it had passed: 40 keyframes)")
 
 

@@ -342,11 +342,11 @@ def loops_line(r: dict[str, Any]) -> str | None:
         head = (f"{kept} loop{'s' if kept != 1 else ''} closed ({verified} places verified among {kf} keyframes), "
                 f"largest correction {lc.get('max_correction_m', 0.0):.2f} m and "
                 f"{math.degrees(lc.get('max_correction_rad', 0.0)):.1f}°")
-    elif verified:
+    elif verified or lc.get("candidates", 0):  # (candidates all beyond the gate are not verified)
         head = f"no loop found ({verified} places verified among {kf} keyframes, none matched well enough)"
     else:
         head = f"no loop found (the tour came back to no place it had passed: {kf} keyframes)"
-    refit = lc.get("rematch_kept")
+    refit = lc.get("rematched")  # (rematch_kept: the steps whose re-fit failed, the registration's kept)
     if refit:
         head += f"; {refit} of {max(lc.get('keyframes', 1) - 1, 1)} keyframe steps re-fitted to the keyframe before"
     return head

@@ -729,9 +729,10 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
 
 def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...],
                  reg_cfg: dict[str, Any]) -> None:
+    registration = RegistrationConfig.model_validate(reg_cfg)
     # fusion may fall behind (its pipe is bounded); registration is the critical path. Not so with loop
     # closure, whose search runs here: then this worker is the critical path
-    if not RegistrationConfig.model_validate(reg_cfg).loop_closure.enabled:
+    if not registration.loop_closure.enabled:
         with contextlib.suppress(OSError):
             os.nice(5)
     from .grid import SemanticGrid
@@ -739,7 +740,6 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     from .register.registrar import loop_closer, solve_loops
 
     grid_cfg = GridConfig.model_validate(cfg)
-    registration = RegistrationConfig.model_validate(reg_cfg)
     grid = SemanticGrid(grid_cfg, class_names)
     sample = EndpointSample()
     refuse = _Refusion(registration)

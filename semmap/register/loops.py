@@ -356,20 +356,6 @@ def _correspondences(sub: _Submap, pts: F64, pose: F64, radius: float) -> tuple[
     return r, jac, v, share
 
 
-def _solve3(h: F64, g: F64) -> F64 | None:
-    """``h⁻¹ g`` for a 3x3 ``h`` by its adjugate (a Gauss-Newton step: np.linalg.solve costs several times
-    as much at this size); None when ``h`` is singular."""
-    (a, b, c), (d, e, f), (p, q, r) = h.tolist()
-    x, y, z = g.tolist()
-    ca, cb, cc = e * r - f * q, f * p - d * r, d * q - e * p
-    det = a * ca + b * cb + c * cc
-    if not math.isfinite(det) or abs(det) <= 1e-300:
-        return None
-    cd, ce, cf = c * q - b * r, a * r - c * p, b * p - a * q
-    cg, ch, ci = b * f - c * e, c * d - a * f, a * e - b * d
-    return np.array([ca * x + cd * y + cg * z, cb * x + ce * y + ch * z, cc * x + cf * y + ci * z]) / det
-
-
 def _scaled_condition(h: F64, v: F64) -> float:
     """Smallest over largest eigenvalue of a point-to-line Hessian, rotation in metres at the points'
     (``v``, relative to the pose's origin) RMS range, so that the eigenvalues compare."""
@@ -409,8 +395,9 @@ def _align(sub: _Submap, pts: F64, guess: F64, cfg: LoopConfig) -> F64:
         h = jw.T @ jac
         if it >= _DEGENERATE_AFTER and _scaled_condition(h, v) < 0.25 * cfg.min_condition:
             break
-        step = _solve3(h + 1e-9 * np.eye(3), jw.T @ r)
-        if step is None:
+        try:
+            step = np.linalg.solve(h + 1e-9 * np.eye(3), jw.T @ r)
+        except np.linalg.LinAlgError:
             break
         pose = pose - step
         pose[2] = wrap_angle(float(pose[2]))

@@ -250,6 +250,7 @@ class Registrar:
             self._counts["odom_missing"] += 1
         prep = prepared if prepared is not None else self.prepare(scan)
         pose = self._odometry_step(odom) if self.cfg.mode == "odometry" else self._scan_step(scan, odom, prep)
+        self.loop_record = None  # (never the scan before's)
         if self.cfg.loop_closure.enabled and prep is not None:
             if self._closer is not None:
                 self._closer.add(self._counts["scans"], pose, prep.scan.map_points[:, :2])

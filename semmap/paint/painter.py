@@ -256,13 +256,18 @@ class LabelMemory:
     casts one vote per cell it saw (the label most of its returns there had), and a cell keeps the label
     that has won the vote (a running majority: one vote up for the label in the lead, one down for any
     other). A scan paired with a frame that was not segmented looks its returns up (:meth:`lookup`): each
-    takes its cell's label once that label leads by ``MIN_LEAD`` votes, and none otherwise (a cell seen by
-    one frame, or labelled one way and another). Structure and furniture stay where they are during a
-    tour, so their labels hold for the whole tour. People move: a cell whose vote a person leads takes the
-    ``dynamic`` label on one frame's word, and only ``window_s`` seconds after the last frame that gave it
-    (someone standing still goes from the map with fewer frames; someone who walked on leaves no label).
+    takes its cell's label once that label leads, by ``MIN_LEAD`` votes for structure and by one for
+    furniture, and none otherwise (a cell labelled one way and another, or structure seen by one frame).
+    Furniture on one frame's word: at LiDAR height a chair or a table is its legs, which the masks hit in
+    some frames and miss in others, so a leg the one segmented frame of its stretch labelled would
+    otherwise keep that single label (below ``cleaning.min_labelled_hits``) while every frame between
+    paints it structure. Structure and furniture stay where they are during a tour, so their labels hold
+    for the whole tour. People move: a cell whose vote a person leads takes the ``dynamic`` label on one
+    frame's word, and only ``window_s`` seconds after the last frame that gave it (someone standing still
+    goes from the map with fewer frames; someone who walked on leaves no label).
     """
 
+    #: the lead a structure label needs before it transfers (furniture: one vote; people: see above)
     MIN_LEAD = 2
 
     def __init__(self, cell: float, window_s: float = 3.0) -> None:
@@ -324,7 +329,7 @@ class LabelMemory:
             if v[0] >> 16 == Mobility.DYNAMIC:  # a person: one frame's word, for a short while
                 if abs(stamp_ns - v[2]) <= w:
                     found[i], code[i] = True, v[0]
-            elif v[1] >= lead:
+            elif v[1] >= lead or v[0] >> 16 == Mobility.SEMI_STATIC:
                 found[i], code[i] = True, v[0]
         return found, np.where(found, code >> 16, 0).astype(np.uint8), np.where(found, (code & 0xFFFF) - 1,
                                                                                -1).astype(np.int16)

@@ -294,7 +294,7 @@ class SegmentationConfig(_Model):
                                                "long after the frame that gave it, s")
     need_frames: int = Field(2, ge=1, le=100, description="select: need: a cell has the camera evidence it needs "
                                                           "once this many segmented frames in a row gave it one "
-                                                          "label")
+                                                          "label (furniture: once one frame did)")
     need_cells: float = Field(2.0, gt=0, le=10000,
                               description="select: need: segment a frame when the cells in its view lack this many "
                                           "cells' worth of evidence (a cell on a small thing counts 1, one on a wall "

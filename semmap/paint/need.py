@@ -8,7 +8,8 @@ in the odometry frame:
 * Before the model sees a frame, the latest scan is projected into the camera (the painter, with a
   blank mask): the returns the frame would label. Each lacks evidence in proportion to how far its cell
   is from ``need_frames`` segmented frames in a row that gave it one label (a cell never labelled lacks
-  it all); a cell first hit less than a second ago needs none yet (someone walking through, whom the
+  it all; a cell a frame labelled furniture has it, as the painter's label memory transfers furniture on
+  one frame's word); a cell first hit less than a second ago needs none yet (someone walking through, whom the
   cleaning drops for the free space seen behind them). What the LiDAR alone cannot tell apart is small
   things: a run of returns shorter than 1 m is a leg, a person, a pot or a chair, a longer one a wall
   or a long face. The frame is segmented when the cells in view lack ``need_cells`` cells' worth of
@@ -187,7 +188,11 @@ class NeedSelector(FrameSelector):
         ev, first = self._evidence, self._first_hit
         assert self._scan is not None
         young = self._scan.stamp_ns - PERSIST_NS
-        have = np.fromiter((k if first.get(q >> 1, young + 1) > young else min(ev[q][0], k) if q in ev else 0
+        # furniture on one frame's word, as the label memory transfers it (a second look at a leg is
+        # the next frame's glimpse of it, from nearly the same pose); structure and people on k
+        semi = Mobility.SEMI_STATIC
+        have = np.fromiter((k if first.get(q >> 1, young + 1) > young else 0 if q not in ev
+                            else k if ev[q][1] >> 16 == semi else min(ev[q][0], k)
                             for q in keys.tolist()), np.float64, keys.size)
         lack = 1.0 - have / k
         # per cell, not per return: a thing near the robot (many returns) counts as much as one farther away

@@ -135,7 +135,7 @@ def test_the_label_memory_transfers_furniture_on_one_frames_word_structure_on_tw
     frame(10, chair, Mobility.STATIC, -1)  # one frame saw the chair's cell as structure: furniture still leads
     found, m, _ = mem.lookup(10 * S, query)
     assert found[1] and m[1] == Mobility.SEMI_STATIC
-    frame(11, chair, Mobility.STATIC, -1)  # a tie: structure leads by one, not enough
+    frame(11, chair, Mobility.STATIC, -1)  # two votes each way: structure takes the lead by one, not enough
     assert mem.lookup(11 * S, query)[0].tolist() == [False, False, False, True]
     frame(12, chair, Mobility.STATIC, -1)
     found, m, _ = mem.lookup(12 * S, query)

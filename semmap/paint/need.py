@@ -39,7 +39,7 @@ from ..geometry import se2_apply
 from ..io.tour import Tour
 from ..records import Calibration, Mobility, Scan, Segmentation
 from ..segment.select import FrameSelector, OdometrySource
-from .painter import Painter, cell_keys, label_codes, majority_labels
+from .painter import Painter, cell_keys, decided_by_one_frame, label_codes, majority_labels
 
 __all__ = ["NeedContext", "NeedSelector", "make_selector", "need_context"]
 
@@ -188,12 +188,18 @@ class NeedSelector(FrameSelector):
         ev, first = self._evidence, self._first_hit
         assert self._scan is not None
         young = self._scan.stamp_ns - PERSIST_NS
-        # furniture on one frame's word, as the label memory transfers it (a second look at a leg is
-        # the next frame's glimpse of it, from nearly the same pose); structure and people on k
-        semi = Mobility.SEMI_STATIC
-        have = np.fromiter((k if first.get(q >> 1, young + 1) > young else 0 if q not in ev
-                            else k if ev[q][1] >> 16 == semi else min(ev[q][0], k)
-                            for q in keys.tolist()), np.float64, keys.size)
+
+        def frames(q: int) -> int:
+            """Of the k frames in a row a cell needs, how many it has: all when first hit a moment ago (no
+            label needed yet) or labelled furniture (on one frame's word, as the label memory passes it on)."""
+            if first.get(q >> 1, young + 1) > young:
+                return k
+            e = ev.get(q)
+            if e is None:
+                return 0
+            return k if decided_by_one_frame(e[1]) else min(e[0], k)
+
+        have = np.fromiter((frames(q) for q in keys.tolist()), np.float64, keys.size)
         lack = 1.0 - have / k
         # per cell, not per return: a thing near the robot (many returns) counts as much as one farther away
         cells, one, index = np.unique(keys, return_index=True, return_inverse=True)

@@ -50,7 +50,7 @@ from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
 __all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter", "cell_keys",
-           "label_codes", "label_memory", "majority_labels"]
+           "decided_by_one_frame", "label_codes", "label_memory", "majority_labels"]
 
 
 @dataclass(frozen=True)
@@ -239,6 +239,14 @@ def label_codes(mobility: NDArray[np.uint8], class_id: NDArray[np.int16]) -> NDA
     return (mobility.astype(np.int64) << 16) | (class_id.astype(np.int64) + 1)
 
 
+def decided_by_one_frame(code: int) -> bool:
+    """Whether one segmented frame's label (a :func:`label_codes` code) settles a cell: furniture's does. At
+    LiDAR height a chair or a table is its legs, which the masks hit in some frames and miss in others, so a
+    second frame's word on a leg is as likely a miss as a confirmation. Structure needs more (people: see
+    :class:`LabelMemory`)."""
+    return code >> 16 == Mobility.SEMI_STATIC
+
+
 def majority_labels(keys: NDArray[np.int64], codes: NDArray[np.int64]) -> tuple[list[int], list[int]]:
     """Per key (< 2**43), the label code most of its returns have: the keys and their codes."""
     pairs, counts = np.unique((keys << 20) | codes, return_counts=True)
@@ -329,7 +337,7 @@ class LabelMemory:
             if v[0] >> 16 == Mobility.DYNAMIC:  # a person: one frame's word, for a short while
                 if abs(stamp_ns - v[2]) <= w:
                     found[i], code[i] = True, v[0]
-            elif v[1] >= lead or v[0] >> 16 == Mobility.SEMI_STATIC:
+            elif v[1] >= lead or decided_by_one_frame(v[0]):
                 found[i], code[i] = True, v[0]
         return found, np.where(found, code >> 16, 0).astype(np.uint8), np.where(found, (code & 0xFFFF) - 1,
                                                                                -1).astype(np.int16)

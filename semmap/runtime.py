@@ -8,10 +8,40 @@ import signal
 import sys
 from collections.abc import Iterator
 
-__all__ = ["STOP_SIGNALS", "peak_rss_mb", "signals_held"]
+__all__ = ["STOP_SIGNALS", "forget_stops", "note_stop", "peak_rss_mb", "raise_if_stopped", "signals_held"]
 
 #: the signals that stop a build: Ctrl-C, ``kill``/systemd, a closed terminal
 STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
+
+
+#: the stop signals whose handler has run in this process (see :func:`note_stop`)
+_STOPS: list[int] = []
+
+
+def note_stop(signum: int) -> None:
+    """Record that a stop signal's handler ran. The handler raises its exception wherever the main thread
+    is, and that may be inside a finalizer (an object the garbage collector frees mid-rendering), whose
+    exceptions Python reports as unraisable and drops: the build would then run on and write its output
+    as if nothing had come. :func:`raise_if_stopped` raises it again before an output is committed."""
+    _STOPS.append(int(signum))
+
+
+def forget_stops() -> None:
+    """Forget the stop signals recorded (a command that starts, or one whose stop was handled)."""
+    _STOPS.clear()
+
+
+def raise_if_stopped() -> None:
+    """Raise the stop signal :func:`note_stop` recorded, if one was (once: it is then forgotten)."""
+    if not _STOPS:
+        return
+    signum = _STOPS[-1]
+    forget_stops()
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    from .errors import Interrupted
+
+    raise Interrupted(signum)
 
 
 def peak_rss_mb() -> float:

@@ -437,3 +437,44 @@ def test_a_half_built_object_cut_short_by_a_signal_prints_no_traceback(sig):
                          timeout=60, check=False)
     assert res.stdout.strip() == "stopped"
     assert res.stderr == ""
+
+
+_IN_A_FINALIZER = r"""
+import gc, os, signal, sys
+from pathlib import Path
+from semmap.cli.main import _stop_signals_raise
+from semmap.errors import Interrupted
+from semmap.io.atomic import atomic_dir
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
+class Dropped:
+    def __del__(self):  # the garbage collector frees it mid-write, and the signal lands here
+        os.kill(os.getpid(), int(sys.argv[1]))
+        for _ in range(1000):  # the handler runs, and raises, at one of these steps
+            pass
+
+out = Path(sys.argv[2])
+try:
+    with _stop_signals_raise(), atomic_dir(out) as tmp:
+        (tmp / "map.pgm").write_text("P5")
+        d = Dropped()
+        del d  # its __del__'s exception is unraisable: Python drops it
+        (tmp / "summary.json").write_text("{}")  # the build writes on, as if nothing had come
+    print("committed")
+except (Interrupted, KeyboardInterrupt):
+    print("stopped")
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_stop_signal_whose_exception_a_finalizer_dropped_still_leaves_no_output(sig, tmp_path):
+    """A stop signal's handler raises wherever the main thread is; inside a finalizer (an object the
+    garbage collector frees while the map folder's pictures are drawn) Python drops that exception, and
+    the build used to write its folder and exit 0 (seen once on CI: a SIGHUP to the group while writing).
+    The folder must not be committed, and the command stops."""
+    out = tmp_path / "map"
+    res = subprocess.run([sys.executable, "-c", _IN_A_FINALIZER, str(int(sig)), str(out)], capture_output=True,
+                         text=True, timeout=60, check=False)
+    assert res.stdout.strip() == "stopped", res.stderr
+    assert not out.exists() and not list(tmp_path.glob(".map.*")), "the output was committed or left behind"

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from ..errors import InternalError, Interrupted, SemmapError
 from ..io.atomic import COMMITTED
+from ..runtime import forget_stops, note_stop
 from ..version import __version__
 from . import batch as batch_cmd
 from . import build as build_cmd
@@ -78,11 +79,13 @@ def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
 
 def _raise_interrupted(signum: int, frame: object) -> None:
     sys.unraisablehook = _quiet_unraisable
+    note_stop(signum)
     raise Interrupted(signum)
 
 
 def _raise_keyboard_interrupt(signum: int, frame: object) -> None:
     sys.unraisablehook = _quiet_unraisable
+    note_stop(signum)
     raise KeyboardInterrupt
 
 
@@ -124,6 +127,7 @@ def _stop_behind(exc: BaseException) -> KeyboardInterrupt | None:
 def _stopped(prog: str, args: argparse.Namespace, exc: KeyboardInterrupt, n_committed: int) -> int:
     """The exit of a command a stop signal ended: one line and 128 + the signal, or 0 when the signal
     came once the output was complete."""
+    forget_stops()
     signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
     out = getattr(args, "out", None)
     if out is not None and Path(out).expanduser().resolve() in COMMITTED[n_committed:]:
@@ -142,6 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(args.verbose)
     prog = f"semmap {args.command}"
     n_committed = len(COMMITTED)
+    forget_stops()
     try:
         with _stop_signals_raise():
             code = int(args.run(args) or 0)

@@ -129,7 +129,7 @@ def atomic_dir(out: str | Path, force: bool = False, marker: str | None = None,
     complete. On any exception, including Ctrl-C and SIGTERM raised as exceptions, the hidden
     folder is removed and ``out`` is left as it was.
     """
-    from ..runtime import signals_held
+    from ..runtime import raise_if_stopped, signals_held
 
     out = Path(out).expanduser()
     check_output(out, force, marker, inputs, what)
@@ -152,6 +152,7 @@ def atomic_dir(out: str | Path, force: bool = False, marker: str | None = None,
             raise
         (tmp / _OWNER).unlink()
         with signals_held():  # the old folder goes and the new one arrives, or neither
+            raise_if_stopped()  # (a stop signal whose exception a finalizer swallowed: nothing is committed)
             trash = None
             if out.exists():
                 check_output(out, force, marker, inputs, what)  # it may have appeared meanwhile
@@ -176,7 +177,7 @@ def atomic_dir(out: str | Path, force: bool = False, marker: str | None = None,
 def atomic_file(out: str | Path, force: bool = False, inputs: Sequence[str | Path] = (),
                 what: str = "file") -> Iterator[Path]:
     """Yield a hidden path beside the file ``out``; rename it to ``out`` when the block succeeds."""
-    from ..runtime import signals_held
+    from ..runtime import raise_if_stopped, signals_held
 
     out = check_output_file(out, force, inputs, what)
     try:
@@ -189,6 +190,7 @@ def atomic_file(out: str | Path, force: bool = False, inputs: Sequence[str | Pat
     try:
         yield tmp
         with signals_held():
+            raise_if_stopped()
             os.chmod(tmp, 0o666 & ~_umask())
             os.replace(tmp, out)
             COMMITTED.append(out.resolve())

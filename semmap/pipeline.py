@@ -58,6 +58,7 @@ from .paint.painter import Painter, label_memory
 from .paint.stream import ScanStream, open_build_tour, selection_odometry, tour_class_names
 from .segment.base import backend_consumes
 from .segment.images import ImageSource, InProcessImages
+from .segment.select import every_frame
 from .version import __version__
 from .workers import ImageWorker, InProcessMapper, Mapper, MapperResult, MapperWorkers
 
@@ -229,10 +230,14 @@ def _run(tinfo: Tour, bag: OpenBag, cfg: BuildConfig, class_names: tuple[str, ..
     mapper: Mapper | None = None
     try:
         msgtype = tinfo.types.get(tinfo.topics.image or "", "")
+        # scans paired with a frame the selection skipped take structure and furniture labels in the mapping,
+        # through the registered poses (LabelTransfer)
+        transfer = (tinfo.topics.image is not None and tinfo.calibration is not None
+                    and not every_frame(cfg.segmentation))
         if cfg.workers:  # started first: they load their libraries while the rest is set up
-            mapper = MapperWorkers(cfg.registration, cfg.grid, class_names)
+            mapper = MapperWorkers(cfg.registration, cfg.grid, class_names, transfer=transfer)
         else:
-            mapper = InProcessMapper(cfg.registration, cfg.grid, class_names)
+            mapper = InProcessMapper(cfg.registration, cfg.grid, class_names, transfer=transfer)
         if tinfo.topics.image is not None:
             odometry, need = selection_odometry(tinfo, cfg), need_context(tinfo, cfg)
             if cfg.workers and not _images_are_light(cfg, msgtype):
@@ -365,7 +370,8 @@ def _outcome(tinfo: Tour, cfg: BuildConfig, class_names: tuple[str, ...], run: _
                 max_frames=cfg.segmentation.max_frames, max_seconds=cfg.segmentation.max_seconds,
                 frames_segmented=run.image_counts.get("images", 0),
                 frames_skipped=run.image_counts.get("skipped_frames", 0),
-                scans_from_memory=ps.transferred, returns_labelled_from_memory=ps.points_transferred,
+                scans_from_memory=ps.transferred,
+                returns_labelled_from_memory=ps.points_transferred + run.result.returns_labelled,
             ) if class_names else None,
             readings_below_range_min_fraction=round(ps.below_range_min / max(ps.beams, 1), 4),
             readings_below_range_min_unblocked_fraction=round(ps.below_range_min_unblocked / max(ps.beams, 1), 4),

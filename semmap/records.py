@@ -311,6 +311,12 @@ class PaintedScan:
       the point's class's mask (``REGION_BASE`` and above); given for semi-static points only
       (None: all -1).
     * ``stamp_ns``: the time the points are expressed at (the scan's reference time).
+    * ``frame_ns``: the stamp of the camera frame the scan was paired with (None: none, or no calibrated
+      camera); ``segmented``: whether that frame was segmented (its labels are on the returns) or skipped
+      (``segmentation.select``: the returns await the labels of the frames that were, see
+      :class:`~semmap.paint.painter.LabelTransfer`).
+    * ``in_view`` (N,): for a scan paired with a skipped frame, the returns that frame's camera saw
+      (None: all or none).
     """
 
     stamp_ns: int
@@ -322,6 +328,9 @@ class PaintedScan:
     class_names: tuple[str, ...] = ()
     frame_id: str = ""
     instance: NDArray[np.int32] | None = None
+    frame_ns: int | None = None
+    segmented: bool = False
+    in_view: NDArray[np.bool_] | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2)
@@ -336,6 +345,12 @@ class PaintedScan:
                           ("hit", hit), ("mobility", mob), ("class_id", cls), ("instance", inst)):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        if self.in_view is not None:
+            view = np.asarray(self.in_view, dtype=bool).reshape(-1)
+            if view.size != n:
+                raise ValueError("in_view must have one entry per beam")
+            view.setflags(write=False)
+            object.__setattr__(self, "in_view", view)
         object.__setattr__(self, "class_names", tuple(self.class_names))
 
     @property

@@ -588,6 +588,9 @@ class MapperResult:
     #: a sample of the returns, in their scans' base frames (M, 2), and their scan numbers (M,)
     #: (:class:`~semmap.grid.consistency.EndpointSample`)
     endpoints: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
+    #: returns of scans paired with a skipped frame that took a structure or furniture label
+    #: (:class:`~semmap.paint.painter.LabelTransfer`)
+    returns_labelled: int = 0
 
 
 class Mapper(Protocol):
@@ -607,9 +610,12 @@ class Mapper(Protocol):
 
 
 class InProcessMapper:
-    """Registration and fusion in this process."""
+    """Registration and fusion in this process. ``transfer``: scans paired with a skipped frame take the
+    structure and furniture labels of the segmented frames, through the registered poses
+    (:class:`~semmap.paint.painter.LabelTransfer`)."""
 
-    def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...]) -> None:
+    def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
+                 transfer: bool = False) -> None:
         from .grid import SemanticGrid
         from .grid.consistency import EndpointSample
         from .register import Registrar
@@ -618,7 +624,7 @@ class InProcessMapper:
         self._grid = SemanticGrid(grid_cfg, class_names)
         self._grid_args = (grid_cfg, class_names)
         self._sample = EndpointSample()
-        self._refuse = _Refusion(reg_cfg)
+        self._refuse = _Refusion(reg_cfg, grid_cfg.resolution if transfer else None)
         self._poses = array("d")
         self._busy = [0.0, 0.0]
 
@@ -646,7 +652,8 @@ class InProcessMapper:
         self._busy[0] += t1 - t0
         self._busy[1] += time.perf_counter() - t1
         return MapperResult(poses if final is None else final, grid.layers(), self._registrar.stats, self._busy[0],
-                            self._busy[1], endpoints=self._sample.base_points)
+                            self._busy[1], endpoints=self._sample.base_points,
+                            returns_labelled=self._refuse.returns_labelled)
 
     def close(self) -> None:
         self._refuse.close()
@@ -657,17 +664,24 @@ class _Refusion:
     loop closure corrected. Fusing them as they come as well would cost a second fusion of the
     whole tour, and CPU the painter and the registration need while the tour plays (2 cores)."""
 
-    def __init__(self, reg_cfg: RegistrationConfig) -> None:
+    def __init__(self, reg_cfg: RegistrationConfig, transfer_cell: float | None = None) -> None:
         from .grid.spool import ScanSpool
+        from .paint.painter import LabelTransfer
 
         self._spool = ScanSpool() if reg_cfg.loop_closure.enabled else None
+        #: the labels of scans paired with a skipped frame, passed on at the poses the scans are fused at
+        self.transfer = None if transfer_cell is None else LabelTransfer(transfer_cell)
+
+    @property
+    def returns_labelled(self) -> int:
+        return 0 if self.transfer is None else self.transfer.returns_labelled
 
     def add(self, grid: Any, pose: NDArray[np.float64], painted: PaintedScan) -> None:
         """Fuse the scan into ``grid`` now, or, with loop closure, keep it for :meth:`fuse_at_end`."""
         if self._spool is not None:
             self._spool.append(painted)
         else:
-            grid.integrate(pose, painted)
+            grid.integrate(pose, painted if self.transfer is None else self.transfer.apply(pose, painted))
 
     def fuse_at_end(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
                     new_grid: Callable[[], Any], hand_off: Callable[[NDArray[np.float64], Any], int] | None = None
@@ -690,7 +704,7 @@ class _Refusion:
         for i, (pose, painted) in enumerate(zip(use, self._spool)):
             if i == stop:
                 break
-            grid.integrate(pose, painted)
+            grid.integrate(pose, painted if self.transfer is None else self.transfer.apply(pose, painted))
             if i == 0 and hand_off is not None:
                 stop = hand_off(use, grid)
         return grid
@@ -728,7 +742,7 @@ def _registration_body(out: Connection, inbox: Connection, to_fusion: Connection
 
 
 def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_names: tuple[str, ...],
-                 reg_cfg: dict[str, Any]) -> None:
+                 reg_cfg: dict[str, Any], transfer_cell: float | None) -> None:
     registration = RegistrationConfig.model_validate(reg_cfg)
     # fusion may fall behind (its pipe is bounded); registration is the critical path. Not so with loop
     # closure, whose search runs here: then this worker is the critical path
@@ -742,7 +756,7 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     grid_cfg = GridConfig.model_validate(cfg)
     grid = SemanticGrid(grid_cfg, class_names)
     sample = EndpointSample()
-    refuse = _Refusion(registration)
+    refuse = _Refusion(registration, transfer_cell)
     # with loop closure, fusion waits for the end of the tour (the scans are spooled), so this worker has
     # the time to close the loops: their search stays off the registration's critical path
     closer = loop_closer(registration)
@@ -784,7 +798,7 @@ def _fusion_body(out: Connection, inbox: Connection, cfg: dict[str, Any], class_
     _send_large(out, grid.layers())
     out.send(("endpoints", *sample.base_points))
     # the peak includes taking the layers out
-    out.send(("fused", busy - loops_s, peak_rss_mb(), cpu, final, loop_stats, loops_s))
+    out.send(("fused", busy - loops_s, peak_rss_mb(), cpu, final, loop_stats, loops_s, refuse.returns_labelled))
 
 
 #: share of the tour's scans the fusion worker fuses at the end of a tour with loop closure; the calling
@@ -809,7 +823,9 @@ class MapperWorkers:
     """
 
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
-                 batch: int = 16) -> None:
+                 batch: int = 16, transfer: bool = False) -> None:
+        self._transfer_cell = grid_cfg.resolution if transfer else None
+        self._tail_labelled = 0
         self._group = _Workers()
         try:
             scans_r, self._scans = self._group.pipe(to_child=True, wide=True)
@@ -818,7 +834,7 @@ class MapperWorkers:
                                         reg_cfg.model_dump(mode="json"))
             self._fuse = self._group.add("semmap-fusion", "fusion", _fusion_body, fuse_r,
                                          grid_cfg.model_dump(mode="json"), tuple(class_names),
-                                         reg_cfg.model_dump(mode="json"))
+                                         reg_cfg.model_dump(mode="json"), self._transfer_cell)
             self._group.start()
         except BaseException:
             self._group.close()
@@ -888,7 +904,8 @@ class MapperWorkers:
             log.debug("fusion at the end: %.3f s waiting for the fusion worker's half, merged in %.3f s",
                       t0 - t_wait, time.perf_counter() - t0)
         _, xy, scan_of = self._expect(self._fuse, "endpoints")
-        _, fuse_busy, fuse_rss, fuse_cpu, final, loop_stats, loops_s = self._expect(self._fuse, "fused", last=True)
+        _, fuse_busy, fuse_rss, fuse_cpu, final, loop_stats, loops_s, labelled = self._expect(self._fuse, "fused",
+                                                                                             last=True)
         if final is not None:  # loop closure, in the fusion worker: its time counts as registration's
             poses = final
             from .register.registrar import registration_speed
@@ -898,7 +915,8 @@ class MapperWorkers:
                      **registration_speed(stats["scans"], stats["seconds"] + loops_s)}
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy + tail_s,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
-                            {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of))
+                            {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of),
+                            labelled + self._tail_labelled)
 
     def _fuse_tail(self, poses: NDArray[np.float64], split: int, lattice: tuple[float, float] | None) -> Any:
         """The grid of the scans from ``split`` on, continuing the fusion worker's (None: no scans left)."""
@@ -909,10 +927,19 @@ class MapperWorkers:
         if len(poses) != len(self._spool):
             raise InternalError(f"fusion: {len(self._spool)} scans kept here for {len(poses)} poses")
         tail = SemanticGrid.continuing(*self._grid_args, lattice, split)
+        transfer = None
+        if self._transfer_cell is not None:  # the votes of the scans the fusion worker fuses, cast here again
+            from .paint.painter import LabelTransfer
+
+            transfer = LabelTransfer(self._transfer_cell)
+            for pose, painted in zip(poses[:split], self._spool):
+                transfer.remember(pose, painted)
         for i, (pose, painted) in enumerate(zip(poses[split:], self._spool.iter_from(split))):
-            tail.integrate(pose, painted)
+            tail.integrate(pose, painted if transfer is None else transfer.apply(pose, painted))
             if i % 64 == 63:
                 self._group.check()  # a worker that died meanwhile is reported now, not after this half
+        if transfer is not None:
+            self._tail_labelled = transfer.returns_labelled
         return tail
 
     def _expect(self, w: _Worker, tag: str, last: bool = False) -> Any:

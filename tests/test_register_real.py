@@ -269,3 +269,68 @@ def test_with_loop_closure_the_grid_is_fused_once_from_the_final_poses(workers):
     np.testing.assert_array_equal(result.layers.log_odds, expected.log_odds)
     np.testing.assert_array_equal(result.layers.hits, expected.hits)
     np.testing.assert_array_equal(result.layers.free, expected.free)
+
+
+@pytest.mark.parametrize("loops", [False, True], ids=["fused", "loop-closure"])
+@pytest.mark.parametrize("workers", [False, True], ids=["in-process", "worker-processes"])
+def test_scans_paired_with_a_skipped_frame_take_labels_through_the_poses_the_grid_is_fused_at(workers, loops):
+    # one frame in three segmented: the others' returns take structure and furniture labels in the mapping,
+    # at the poses each scan is fused at (the wheel odometry here is 10 cm off and drifting), in the same order
+    # whichever process fuses which half of the tour
+    from semmap.config import GridConfig, LoopClosureConfig
+    from semmap.grid import SemanticGrid
+    from semmap.paint.painter import LabelTransfer
+    from semmap.workers import InProcessMapper, MapperWorkers
+
+    rng = np.random.default_rng(6)
+    reg = RegistrationConfig(mode="fused", loop_closure=LoopClosureConfig(enabled=loops))
+    grid_cfg = GridConfig()
+    names = ("person", "chair")
+    truth = [(0.05 * i, 0.02 * i, 0.03 * i) for i in range(40)]
+    scans, chairs = [], []
+    for i, p in enumerate(truth):
+        s = synthetic_scan(p, rng, stamp_ns=i * 100_000_000, movers=[(1.0, 0.5)])
+        chair = s.mobility == Mobility.DYNAMIC  # the box is a chair here
+        chairs.append(chair)
+        if i % 3 == 0:
+            mob = np.where(chair, int(Mobility.SEMI_STATIC), s.mobility).astype(np.uint8)
+            s = PaintedScan(stamp_ns=s.stamp_ns, origin=s.origin, points=s.points, hit=s.hit, mobility=mob,
+                            class_id=np.where(chair, 1, -1), class_names=names, frame_ns=s.stamp_ns, segmented=True)
+        else:
+            view = np.ones(s.hit.size, bool)
+            view[:40] = False  # beams the skipped frame's camera did not see
+            s = PaintedScan(stamp_ns=s.stamp_ns, origin=s.origin, points=s.points, hit=s.hit,
+                            mobility=np.zeros(s.hit.size, np.uint8), class_id=np.full(s.hit.size, -1),
+                            class_names=names, frame_ns=s.stamp_ns, in_view=view)
+        scans.append(s)
+    mapper = (MapperWorkers(reg, grid_cfg, names, transfer=True) if workers
+              else InProcessMapper(reg, grid_cfg, names, transfer=True))
+    try:
+        mapper.wait_ready()
+        for i, (s, p) in enumerate(zip(scans, truth)):
+            mapper.push(s, np.array(p) + (0.1 + 0.01 * i, 0.0, 0.002 * i))
+        result = mapper.finish()
+    finally:
+        mapper.close()
+    transfer, again, bare = LabelTransfer(grid_cfg.resolution), SemanticGrid(grid_cfg, names), SemanticGrid(grid_cfg,
+                                                                                                            names)
+    labelled, on_chair = [], []
+    for pose, s, chair in zip(result.poses, scans, chairs):
+        out = transfer.apply(pose, s)
+        if not s.segmented:
+            labelled.append(out)
+            on_chair.append(chair & s.in_view)
+        again.integrate(pose, out)
+        bare.integrate(pose, s)
+    # the skipped frames' returns in view took labels (the chair's as a chair), none out of view
+    seen = np.concatenate([o.hit & o.in_view for o in labelled])
+    mob = np.concatenate([o.mobility for o in labelled])
+    assert np.mean(mob[seen] != Mobility.UNKNOWN) > 0.6
+    assert np.all(mob[~np.concatenate([o.in_view for o in labelled])] == Mobility.UNKNOWN)
+    chair = np.concatenate(on_chair)
+    assert chair.sum() > 100 and np.mean(mob[chair] == Mobility.SEMI_STATIC) > 0.8
+    assert result.returns_labelled == transfer.returns_labelled > 0
+    expected = again.layers()
+    assert not np.array_equal(expected.mobility, bare.layers().mobility)  # the transfer shows in the grid
+    np.testing.assert_array_equal(result.layers.mobility, expected.mobility)
+    np.testing.assert_array_equal(result.layers.hits, expected.hits)

@@ -18,7 +18,8 @@ from ..records import PaintedScan
 
 __all__ = ["ScanSpool"]
 
-_HEAD = np.dtype([("stamp_ns", "<i8"), ("n", "<i8"), ("ox", "<f8"), ("oy", "<f8"), ("instances", "<i8")])
+_HEAD = np.dtype([("stamp_ns", "<i8"), ("n", "<i8"), ("ox", "<f8"), ("oy", "<f8"), ("instances", "<i8"),
+                  ("frame_ns", "<i8"), ("flags", "<i8")])  # flags: 1 a paired frame, 2 segmented, 4 in_view kept
 
 
 class ScanSpool:
@@ -38,13 +39,17 @@ class ScanSpool:
     def append(self, scan: PaintedScan) -> None:
         n = scan.points.shape[0]
         inst = scan.instance
-        head = np.array([(scan.stamp_ns, n, scan.origin[0], scan.origin[1], 0 if inst is None else 1)], _HEAD)
+        flags = (scan.frame_ns is not None) | 2 * scan.segmented | 4 * (scan.in_view is not None)
+        head = np.array([(scan.stamp_ns, n, scan.origin[0], scan.origin[1], 0 if inst is None else 1,
+                          scan.frame_ns or 0, flags)], _HEAD)
         parts = [head.tobytes(), np.ascontiguousarray(scan.points, np.float32).tobytes(),
                  np.ascontiguousarray(scan.hit, np.bool_).tobytes(),
                  np.ascontiguousarray(scan.mobility, np.uint8).tobytes(),
                  np.ascontiguousarray(scan.class_id, np.int16).tobytes()]
         if inst is not None:
             parts.append(np.ascontiguousarray(inst, np.int32).tobytes())
+        if scan.in_view is not None:
+            parts.append(np.ascontiguousarray(scan.in_view, np.bool_).tobytes())
         self._offsets.append(self.nbytes)
         for p in parts:
             self._file.write(p)
@@ -71,9 +76,13 @@ class ScanSpool:
             mob = np.frombuffer(f.read(n), np.uint8)
             cls = np.frombuffer(f.read(2 * n), np.int16)
             inst = np.frombuffer(f.read(4 * n), np.int32) if int(head["instances"]) else None
+            flags = int(head["flags"])
+            view = np.frombuffer(f.read(n), np.bool_) if flags & 4 else None
             yield PaintedScan(stamp_ns=int(head["stamp_ns"]), origin=np.array([head["ox"], head["oy"]]), points=pts,
                               hit=hit, mobility=mob, class_id=cls, class_names=self._class_names,
-                              frame_id=self._frame_id, instance=inst)
+                              frame_id=self._frame_id, instance=inst,
+                              frame_ns=int(head["frame_ns"]) if flags & 1 else None, segmented=bool(flags & 2),
+                              in_view=view)
         f.seek(0, 2)
 
     def close(self) -> None:

@@ -105,10 +105,13 @@ def _painted_pairs(bag: OpenBag, tour: str | Path, config: str | Path | BuildCon
     table = load_class_table(cfg.segmentation.classes_file)
     on = cfg.paint.with_occlusion_filter(True)
     off = cfg.paint.with_occlusion_filter(False)
+    # no registration here: the painters pass every label on through the wheel odometry (a build passes
+    # structure's and furniture's on in the map frame)
     painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, on, cfg.sync, cfg.grid.no_return_range,
-                      memory=label_memory(cfg.segmentation, cfg.grid.resolution))
+                      memory=label_memory(cfg.segmentation, cfg.grid.resolution, places=True))
     raw_painter = Painter(tinfo.T_base_lidar, tinfo.calibration, names, table, off, cfg.sync,
-                          cfg.grid.no_return_range, memory=label_memory(cfg.segmentation, cfg.grid.resolution))
+                          cfg.grid.no_return_range, memory=label_memory(cfg.segmentation, cfg.grid.resolution,
+                                                                        places=True))
     odometry = selection_odometry(tinfo, cfg)
     images = InProcessImages(tinfo.bag, tinfo.topics.image, cfg.segmentation,
                              make_selector(cfg.segmentation, odometry, need_context(tinfo, cfg)))

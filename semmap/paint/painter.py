@@ -49,8 +49,8 @@ from ..segment.select import SkippedFrame, every_frame
 from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
-__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "PaintResult", "PaintStats", "Painter", "cell_keys",
-           "decided_by_one_frame", "label_codes", "label_memory", "majority_labels"]
+__all__ = ["BlockedBeams", "CameraView", "LabelMemory", "LabelTransfer", "PaintResult", "PaintStats", "Painter",
+           "cell_keys", "decided_by_one_frame", "label_codes", "label_memory", "label_transfer", "majority_labels"]
 
 
 @dataclass(frozen=True)
@@ -98,8 +98,8 @@ class PaintStats:
     returns_beside_nan_far: int = 0
     # per beam layout seen in at least paint.blocked_min_scans scans: its beams masked as blocked (maybe none)
     blocked: dict[tuple[float, float, int], BlockedBeams] = field(default_factory=dict)
-    transferred: int = 0  # scans paired with a skipped frame that took labels from the last segmented one
-    points_transferred: int = 0  # returns that took a label so
+    transferred: int = 0  # scans paired with a skipped frame (labels from the segmented ones: LabelMemory)
+    points_transferred: int = 0  # returns that took a person's label so (the rest: LabelTransfer, in the mapping)
     occlusion_relabelled: int = 0  # points on a mask the occlusion filter made unknown
     occlusion_max_per_scan: int = 0
     occlusion_scans: int = 0  # scans with at least one such point
@@ -258,7 +258,7 @@ def majority_labels(keys: NDArray[np.int64], codes: NDArray[np.int64]) -> tuple[
 
 
 class LabelMemory:
-    """What the segmented frames said of each map cell, in the odometry frame.
+    """What the segmented frames said of each map cell, in one fixed frame (the map's, or the odometry's).
 
     The labelled returns of every scan painted from a segmented frame are added (:meth:`add`); each frame
     casts one vote per cell it saw (the label most of its returns there had), and a cell keeps the label
@@ -273,26 +273,33 @@ class LabelMemory:
     for the whole tour. People move: a cell whose vote a person leads takes the ``dynamic`` label on one
     frame's word, and only ``window_s`` seconds after the last frame that gave it (someone standing still
     goes from the map with fewer frames; someone who walked on leaves no label).
+
+    ``people`` / ``places``: which labels :meth:`lookup` hands out (people's, structure's and furniture's).
+    A label is only as good as the poses that carry it from its frame to the scan: the painter passes
+    people's over their few seconds in the odometry frame (before registration, which leaves them out of
+    the match), and :class:`LabelTransfer` structure's and furniture's, which hold for the whole tour, in
+    the map frame (wheel odometry drifts by a map cell in a few seconds).
     """
 
     #: the lead a structure label needs before it transfers (furniture: one vote; people: see above)
     MIN_LEAD = 2
 
-    def __init__(self, cell: float, window_s: float = 3.0) -> None:
+    def __init__(self, cell: float, window_s: float = 3.0, people: bool = True, places: bool = True) -> None:
         self.cell = float(cell)
         self.window_ns = int(window_s * 1e9)
+        self.people, self.places = people, places
         self.frame_ns: int | None = None  # the latest frame added
         self._cells: dict[int, list[int]] = {}  # key -> [label code in the lead, its lead, last frame's stamp]
         self._pending: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []  # the latest frame's keys, codes
         self._pruned_ns: int | None = None
 
-    def add(self, frame_ns: int, xy_odom: NDArray[np.float64], mobility: NDArray[np.uint8],
+    def add(self, frame_ns: int, xy: NDArray[np.float64], mobility: NDArray[np.uint8],
             class_id: NDArray[np.int16]) -> None:
-        """The labelled returns (odometry frame) of a scan painted from the frame stamped ``frame_ns``."""
+        """The labelled returns (in the memory's frame) of a scan painted from the frame stamped ``frame_ns``."""
         if frame_ns != self.frame_ns:
             self._merge()
             self.frame_ns = frame_ns
-        self._pending.append((cell_keys(xy_odom, self.cell), label_codes(mobility, class_id)))
+        self._pending.append((cell_keys(xy, self.cell), label_codes(mobility, class_id)))
 
     def _merge(self) -> None:
         """The latest frame's votes into the cells: per cell, the label most of its returns there had."""
@@ -318,37 +325,87 @@ class LabelMemory:
                 e[0], e[1], e[2] = c, 1, t
         if self._pruned_ns is None or t - self._pruned_ns > self.window_ns:  # forget what no scan may use
             self._cells = {k: v for k, v in cells.items()
-                           if t - v[2] <= self.window_ns or v[0] >> 16 != Mobility.DYNAMIC}
+                           if t - v[2] <= self.window_ns or (self.places and v[0] >> 16 != Mobility.DYNAMIC)}
             self._pruned_ns = t
 
-    def lookup(self, stamp_ns: int, xy_odom: NDArray[np.float64],
+    def lookup(self, stamp_ns: int, xy: NDArray[np.float64],
                ) -> tuple[NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int16]]:
-        """For each point (odometry frame) of a scan at ``stamp_ns``: whether its cell has a label, its
+        """For each point (in the memory's frame) of a scan at ``stamp_ns``: whether its cell has a label, its
         mobility and class."""
         self._merge()
-        n = xy_odom.shape[0]
+        n = xy.shape[0]
         found = np.zeros(n, bool)
         code = np.zeros(n, np.int64)
         cells, w, lead = self._cells, self.window_ns, self.MIN_LEAD
-        for i, k in enumerate(cell_keys(xy_odom, self.cell).tolist()):
+        people, places = self.people, self.places
+        for i, k in enumerate(cell_keys(xy, self.cell).tolist()):
             v = cells.get(k)
             if v is None:
                 continue
             if v[0] >> 16 == Mobility.DYNAMIC:  # a person: one frame's word, for a short while
-                if abs(stamp_ns - v[2]) <= w:
+                if people and abs(stamp_ns - v[2]) <= w:
                     found[i], code[i] = True, v[0]
-            elif v[1] >= lead or decided_by_one_frame(v[0]):
+            elif places and (v[1] >= lead or decided_by_one_frame(v[0])):
                 found[i], code[i] = True, v[0]
         return found, np.where(found, code >> 16, 0).astype(np.uint8), np.where(found, (code & 0xFFFF) - 1,
                                                                                -1).astype(np.int16)
 
 
-def label_memory(seg: SegmentationConfig, resolution: float) -> LabelMemory | None:
-    """The label memory a build with segmentation settings ``seg`` and map cells of ``resolution`` needs
-    (None: every frame is segmented)."""
+def label_memory(seg: SegmentationConfig, resolution: float, places: bool = False) -> LabelMemory | None:
+    """The painter's label memory (in the odometry frame) for segmentation settings ``seg`` and map cells of
+    ``resolution`` (None: every frame is segmented): people's labels, and with ``places`` structure's and
+    furniture's too (a build passes those on in the map frame: :class:`LabelTransfer`)."""
     if every_frame(seg):
         return None
-    return LabelMemory(resolution, seg.transfer_window)
+    return LabelMemory(resolution, seg.transfer_window, places=places)
+
+
+class LabelTransfer:
+    """Structure and furniture labels for the scans paired with a frame that was not segmented, passed on
+    from the frames that were through the registered poses (in the map frame: through the wheel odometry a
+    label would land a cell off within seconds, and metres off when the robot comes back a minute later).
+
+    Feed it every scan in order with its pose (:meth:`apply`): a scan painted from a segmented frame casts its
+    votes (:class:`LabelMemory`); a scan paired with a skipped frame comes back with its unlabelled returns
+    in that frame's view labelled where a cell's label has won. :meth:`remember` casts the votes alone (a
+    process that fuses the second half of a tour replays the first half's votes)."""
+
+    def __init__(self, cell: float) -> None:
+        self.memory = LabelMemory(cell, people=False)
+        self.returns_labelled = 0  # returns that took a label
+
+    def remember(self, pose: NDArray[np.float64], painted: PaintedScan) -> None:
+        """Cast the votes of a scan painted from a segmented frame (others: nothing to do)."""
+        if painted.segmented and painted.frame_ns is not None:
+            keep = painted.hit & (painted.mobility != Mobility.UNKNOWN)
+            if keep.any():
+                self.memory.add(painted.frame_ns, se2_apply(pose, painted.points[keep]), painted.mobility[keep],
+                                painted.class_id[keep])
+
+    def apply(self, pose: NDArray[np.float64], painted: PaintedScan) -> PaintedScan:
+        """The scan, at ``pose`` in the map frame, with the labels it takes (see the class)."""
+        if painted.segmented:
+            self.remember(pose, painted)
+            return painted
+        if painted.frame_ns is None or painted.in_view is None or self.memory.frame_ns is None:
+            return painted
+        idx = np.flatnonzero(painted.hit & painted.in_view & (painted.mobility == Mobility.UNKNOWN))
+        if idx.size == 0:
+            return painted
+        found, mob, cls = self.memory.lookup(painted.stamp_ns, se2_apply(pose, painted.points[idx]))
+        if not found.any():
+            return painted
+        mobility, class_id = painted.mobility.copy(), painted.class_id.copy()
+        mobility[idx[found]] = mob[found]
+        class_id[idx[found]] = cls[found]
+        self.returns_labelled += int(np.count_nonzero(found))
+        return replace(painted, mobility=mobility, class_id=class_id)
+
+
+def label_transfer(seg: SegmentationConfig, resolution: float) -> LabelTransfer | None:
+    """The mapping's :class:`LabelTransfer` a build with segmentation settings ``seg`` and map cells of
+    ``resolution`` needs (None: every frame is segmented)."""
+    return None if every_frame(seg) else LabelTransfer(resolution)
 
 
 class Painter:
@@ -510,6 +567,7 @@ class Painter:
         class_id = np.full(n, -1, np.int16)
         instance = np.full(n, -1, np.int32)
         view = None
+        in_view = None
         if isinstance(seg, Segmentation) and self.calib is not None:
             footprint = np.abs(ranges * scan.angle_increment)
             view = self._paint_labels(xy, pts_base[:, 2], hit, footprint, t_ref, odom, seg, mobility, class_id,
@@ -518,22 +576,23 @@ class Painter:
                 labelled = view.beams  # the returns that landed in the image, labelled or made unknown
                 keep = labelled[mobility[labelled] != Mobility.UNKNOWN]
                 self.memory.add(seg.stamp_ns, se2_apply(odom_pose, xy[keep]), mobility[keep], class_id[keep])
-        elif (isinstance(seg, SkippedFrame) and odom_pose is not None and self.memory is not None
-              and self.memory.frame_ns is not None and self.calib is not None):
-            # structure and furniture labels only on the returns this frame's camera saw: a mask would have
-            # labelled no other (with every frame segmented a return out of view is unknown, and a cell gets as
-            # many labels from skipped frames as it would have got from them segmented). A person's label, kept
-            # for a few seconds on one frame's word, goes to every return on their cells: the selection may have
-            # seen them once, and the map must drop them
+        elif isinstance(seg, SkippedFrame) and self.calib is not None:
+            # structure and furniture labels go only to the returns this frame's camera saw (a mask would have
+            # labelled no other: with every frame segmented a return out of view is unknown, and a cell gets as
+            # many labels from skipped frames as it would have got from them segmented); they are passed on in
+            # the map frame, after registration (LabelTransfer). A person's label, kept for a few seconds on
+            # one frame's word, goes here to every return on their cells: the selection may have seen them once,
+            # the map must drop them, and the registration leaves them out of the match
             idx = np.flatnonzero(hit)
-            found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
-            check = np.flatnonzero(found & (mob != Mobility.DYNAMIC))
-            if check.size:
-                found[check] = self._project(xy, pts_base[:, 2], idx[check], t_ref, odom, seg.stamp_ns, count=False)[2]
-            mobility[idx[found]] = mob[found]
-            class_id[idx[found]] = cls[found]
+            in_view = np.zeros(n, bool)
+            in_view[idx] = self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]
             self.stats.transferred += 1
-            self.stats.points_transferred += int(np.count_nonzero(found))
+            if odom_pose is not None and self.memory is not None and self.memory.frame_ns is not None:
+                found, mob, cls = self.memory.lookup(t_ref, se2_apply(odom_pose, xy[idx]))
+                found &= (mob == Mobility.DYNAMIC) | in_view[idx]
+                mobility[idx[found]] = mob[found]
+                class_id[idx[found]] = cls[found]
+                self.stats.points_transferred += int(np.count_nonzero(found))
         painted = PaintedScan(
             stamp_ns=t_ref,
             origin=origin,
@@ -544,6 +603,9 @@ class Painter:
             instance=instance,
             class_names=self.class_names,
             frame_id=scan.frame_id,
+            frame_ns=seg.stamp_ns if isinstance(seg, (Segmentation, SkippedFrame)) and self.calib is not None else None,
+            segmented=isinstance(seg, Segmentation) and view is not None,
+            in_view=in_view,
         )
         return PaintResult(painted, odom_pose, view)
 

@@ -8,6 +8,12 @@ This is the streaming core that ``semmap build`` and ``semmap paint`` share::
     for item in ScanStream(tour, cfg.sync, images):
         result = painter.paint(item.scan, item.odometry, item.segmentation)
 
+With a frame selection (``segmentation.select``), a scan paired with a skipped frame comes out of the
+painter with people's labels only; :class:`~semmap.paint.painter.LabelTransfer` gives it the structure
+and furniture labels of the segmented frames, fed every painted scan in order with the pose it is
+mapped at (``semmap build`` does this after registration; a painter built with
+``label_memory(..., places=True)`` does it through the odometry instead).
+
 It buffers just enough to pair each scan:
 
 * A scan waits until the odometry reaches past its sweep and the latest image it may be paired

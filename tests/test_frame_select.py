@@ -64,6 +64,20 @@ def test_the_budget_holds_the_average_rate_whatever_the_selection_wants():
     assert max(np.diff(taken)) <= 8  # spread over the tour, not spent at its start
 
 
+def test_the_budget_saves_a_quiet_stretchs_frames_for_a_busy_one():
+    # a corridor whose walls are known (nothing wanted for 20 s), then a room of furniture (every frame
+    # wanted): one frame a second allows five at once after the quiet spell, then one a second again
+    class Busy(FrameSelector):
+        def wanted(self, stamp_ns):
+            return self._last_ns is None or stamp_ns >= 20 * S
+
+    sel = Busy(TopicSegmentation(max_rate=1.0))
+    taken = [k for k in range(15 * 40) if sel.want(k * S // 15)]
+    assert taken[0] == 0 and taken[1:6] == list(range(300, 305))  # the saved frames, on the room's first ones
+    assert len(taken) == pytest.approx(1 + 5 + 20, abs=1)  # then the rate: 40 s of tour, 26 frames at most
+    assert min(np.diff(taken[6:])) >= 14
+
+
 def test_a_frame_budget_is_spread_over_the_tour_and_never_overspent():
     sel = FrameSelector(TopicSegmentation(max_frames=30))
     assert not sel.trivial

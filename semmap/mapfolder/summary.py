@@ -94,7 +94,8 @@ class FrameSelectionSummary(_Part):
     max_seconds: float | None = None
     frames_segmented: int
     frames_skipped: int
-    #: scans paired with a skipped frame, which took labels cell by cell from the last segmented one
+    #: scans paired with a skipped frame, which take labels cell by cell from the segmented ones, and the
+    #: returns that took one (structure and furniture through the registered poses, people through the odometry)
     scans_from_memory: int
     returns_labelled_from_memory: int
 

@@ -932,8 +932,10 @@ class MapperWorkers:
             from .paint.painter import LabelTransfer
 
             transfer = LabelTransfer(self._transfer_cell)
-            for pose, painted in zip(poses[:split], self._spool):
+            for i, (pose, painted) in enumerate(zip(poses[:split], self._spool)):
                 transfer.remember(pose, painted)
+                if i % 256 == 255:
+                    self._group.check()
         for i, (pose, painted) in enumerate(zip(poses[split:], self._spool.iter_from(split))):
             tail.integrate(pose, painted if transfer is None else transfer.apply(pose, painted))
             if i % 64 == 63:

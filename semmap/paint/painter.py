@@ -50,7 +50,7 @@ from .motion import OdomTrack
 from .occlusion import hidden_points, mask_regions
 
 __all__ = ["BlockedBeams", "CameraView", "LabelMemory", "LabelTransfer", "PaintResult", "PaintStats", "Painter",
-           "cell_keys", "decided_by_one_frame", "label_codes", "label_memory", "label_transfer", "majority_labels"]
+           "cell_keys", "decided_by_one_frame", "label_codes", "label_memory", "majority_labels"]
 
 
 @dataclass(frozen=True)
@@ -402,12 +402,6 @@ class LabelTransfer:
         return replace(painted, mobility=mobility, class_id=class_id)
 
 
-def label_transfer(seg: SegmentationConfig, resolution: float) -> LabelTransfer | None:
-    """The mapping's :class:`LabelTransfer` a build with segmentation settings ``seg`` and map cells of
-    ``resolution`` needs (None: every frame is segmented)."""
-    return None if every_frame(seg) else LabelTransfer(resolution)
-
-
 class Painter:
     """Paint scans with a calibrated camera's segmentations."""
 
@@ -579,10 +573,11 @@ class Painter:
         elif isinstance(seg, SkippedFrame) and self.calib is not None:
             # structure and furniture labels go only to the returns this frame's camera saw (a mask would have
             # labelled no other: with every frame segmented a return out of view is unknown, and a cell gets as
-            # many labels from skipped frames as it would have got from them segmented); they are passed on in
-            # the map frame, after registration (LabelTransfer). A person's label, kept for a few seconds on
-            # one frame's word, goes here to every return on their cells: the selection may have seen them once,
-            # the map must drop them, and the registration leaves them out of the match
+            # many labels from skipped frames as it would have got from them segmented); a build passes them on
+            # in the map frame, after registration (LabelTransfer, with in_view), and this memory only when it
+            # keeps them too (label_memory's places). A person's label, kept for a few seconds on one frame's
+            # word, goes here to every return on their cells: the selection may have seen them once, the map
+            # must drop them, and the registration leaves them out of the match
             idx = np.flatnonzero(hit)
             in_view = np.zeros(n, bool)
             in_view[idx] = self._project(xy, pts_base[:, 2], idx, t_ref, odom, seg.stamp_ns, count=False)[2]

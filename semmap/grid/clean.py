@@ -370,7 +370,8 @@ _POST_WIDTH = 1.0
 def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDArray[np.bool_], res: float,
                cfg: CleaningConfig, semi: NDArray[np.float32], hits: NDArray[np.uint16],
                static_veto: NDArray[np.bool_], static: NDArray[Any] | None = None,
-               dynamic: NDArray[Any] | None = None, labelled: NDArray[Any] | None = None) -> NDArray[np.bool_]:
+               dynamic: NDArray[Any] | None = None, labelled: NDArray[Any] | None = None,
+               dropped: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
     """Cells of people no camera labelled, found by their legs: two isolated blobs a person's leg wide
     (``person_leg_width``), their centres ``person_leg_spacing`` apart, with nothing else near.
 
@@ -388,7 +389,13 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     walls, beds and counters. Only blobs the LiDAR saw well are judged: their cells gathered at least
     ``person_leg_min_density`` of the returns per cell of the map's obstacles (the median); a blob seen
     by a few returns, from afar or in a few scans, is a smear whose outline says nothing.
+    ``dropped``: blobs already dropped as people (by their labels); a leg blob pairs with one of them (the
+    camera labelled one leg of someone, in a frame or two, and not the other), and they are no neighbours
+    that make a leg part of something else.
     """
+    if dropped is not None:
+        dropped = dropped & ~occ
+        occ = occ | dropped
     n, lab, stats, cent = cv2.connectedComponentsWithStats(occ.astype(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:  # (one blob may be a person: two legs close together)
         return np.zeros(occ.shape, bool)
@@ -416,6 +423,10 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             seen_lab = np.bincount(lab[on], labelled[on].astype(np.float64), n)
             veto &= ~_seen_as_person(seen_dyn, seen_lab, cfg)
     veto[0] = pair_veto[0] = True
+    gone = np.zeros(n, bool)  # blobs dropped as people already
+    if dropped is not None and dropped.any():
+        gone = np.bincount(lab[dropped], minlength=n) * 2 > stats[:, cv2.CC_STAT_AREA]
+        gone[0] = False
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
 
@@ -451,7 +462,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         d = disc[max(r0, 0) - r0:max(r0, 0) - r0 + win.shape[0], max(c0, 0) - c0:max(c0, 0) - c0 + win.shape[1]]
         near = win[d & (win > 0) & ~structure[max(r0, 0):r + rad + 1, max(c0, 0):c + rad + 1]]
         others = np.unique(near[~np.isin(near, blobs)])
-        others = others[[not post(int(o)) for o in others]]
+        others = others[[not gone[o] and not post(int(o)) for o in others]]
         if not others.size:
             return True
         own = list(blobs)
@@ -479,6 +490,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         legs_like = legs_like[legs_like > 0]
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
             two = [ids[i], ids[j]]
+            if gone[two].all():
+                continue
             said = seen_dyn is not None and _seen_as_person(seen_dyn[two].sum(), seen_lab[two].sum(), cfg)
             if seen_dyn is not None and (pair_veto[ids[i]] or pair_veto[ids[j]]) and not said:
                 continue
@@ -491,7 +504,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     # when it has that waist (a post or a bin that size is round). Touching legs are no longer than two
     # legs are wide (legs further apart are two blobs): a wall's end 65 cm long and two cells thick, with
     # stray returns beside it, is no person (a real Hokuyo tour, until stop 53)
-    for b in np.flatnonzero((w >= lo) & (w <= 2 * hi) & ~veto & ~person & dense):
+    for b in np.flatnonzero((w >= lo) & (w <= 2 * hi) & ~veto & ~person & ~gone & dense):
         rows, cols = _blob_cells(lab, stats, int(b))
         pts = np.asarray(np.column_stack([cols, rows]) * res, np.float64)
         (_, _), (bw, bh), _ = cv2.minAreaRect(pts.astype(np.float32))
@@ -835,7 +848,7 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         # the chair's mask (parallax) among hundreds; structure labels as a share too
         legs = occ & ~dyn & _leg_pairs(occ & ~dyn, vetoed, runs.static | runs.unlabelled, res, cfg,
                                        s_semi, layers.hits, vetoed & (s_static >= cfg.min_labelled_hits), s_static,
-                                       s_dyn, lab)
+                                       s_dyn, lab, occ & dyn)
         if legs.any():
             dyn |= legs
             semi &= ~dyn
@@ -848,7 +861,7 @@ def _decide(layers: GridLayers, cfg: CleaningConfig, names: tuple[str, ...]
         # a label too few to count (below min_labelled_hits) asks for _TRANSIENT_LABELLED times the ratio
         # (one float32 copy of the hits, as before: a 150 m floor at 5 cm has 9 million cells)
         least = cfg.transient_ratio * layers.hits.astype(np.float32)
-        least[lab > 0] *= _TRANSIENT_LABELLED
+        least[s_static + s_semi > 0] *= _TRANSIENT_LABELLED  # (a person's label or two says the same as the rays)
         transient = occ & ~runs.on & (lab < cfg.min_labelled_hits) & (layers.free >= least)
         if transient.any():
             # the rim of an obstacle that stays (a thin leg's outer cells, which rays grazing past it

@@ -980,6 +980,18 @@ def test_a_person_the_camera_saw_one_leg_of_leaves_with_both_legs():
     assert cm.occupied[18:25, 18:31].sum() == 0, "a leg of the person stayed"
     assert cm.occupied[38:45, 58:71].sum() == 0
     assert all(cm.occupied[r:r + 2, c:c + 2].all() for r, c in legs), "a chair leg was dropped"
+    # a leg-wide blob the camera labelled furniture (a pot's, a stool's), alone at a leg's spacing from the
+    # labelled leg, is no one's other leg: it stays
+    occ[:, 25:30] = False  # the unlabelled leg gone
+    occ[27:35, 18:40] = False  # and the chair
+    occ[20:23, 25:28] = True
+    lay = _unlabelled_layers(spec, occ, 100)
+    lay.mobility[Mobility.DYNAMIC][21, 21] = lay.mobility[Mobility.DYNAMIC][22, 22] = 1
+    lay.mobility[Mobility.DYNAMIC][40:43, 60:69] = 20 * occ[40:43, 60:69]
+    lay.mobility[Mobility.SEMI_STATIC][20:23, 25:28] = 1
+    lay.mobility[0] -= lay.mobility[1:].sum(axis=0)
+    cm = clean(lay, CleaningConfig(), NAMES)
+    assert cm.occupied[18:25, 18:24].sum() == 0 and cm.occupied[20:23, 25:28].all()
 
 
 def _legs_seen_as_bed_and_person(bed_looks: int, person_looks: int, seed: int, half: float = 0.1):

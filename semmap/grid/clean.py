@@ -389,9 +389,9 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     walls, beds and counters. Only blobs the LiDAR saw well are judged: their cells gathered at least
     ``person_leg_min_density`` of the returns per cell of the map's obstacles (the median); a blob seen
     by a few returns, from afar or in a few scans, is a smear whose outline says nothing.
-    ``dropped``: blobs already dropped as people (by their labels); a leg blob pairs with one of them (the
-    camera labelled one leg of someone, in a frame or two, and not the other), and they are no neighbours
-    that make a leg part of something else.
+    ``dropped``: blobs already dropped as people (by their labels); a leg blob with no furniture label pairs
+    with one of them (the camera labelled one leg of someone, in a frame or two, and not the other), and
+    they are no neighbours that make a leg part of something else.
     """
     if dropped is not None:
         dropped = dropped & ~occ
@@ -424,9 +424,11 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
             veto &= ~_seen_as_person(seen_dyn, seen_lab, cfg)
     veto[0] = pair_veto[0] = True
     gone = np.zeros(n, bool)  # blobs dropped as people already
+    furnished = np.zeros(n, bool)  # blobs with a furniture label
     if dropped is not None and dropped.any():
         gone = np.bincount(lab[dropped], minlength=n) * 2 > stats[:, cv2.CC_STAT_AREA]
         gone[0] = False
+        furnished = np.bincount(lab.reshape(-1), semi.reshape(-1).astype(np.float64), n) > 0
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
 
@@ -490,8 +492,8 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
         legs_like = legs_like[legs_like > 0]
         for i, j in zip(*np.nonzero(np.triu((d >= s_lo) & (d <= s_hi), 1))):
             two = [ids[i], ids[j]]
-            if gone[two].all():
-                continue
+            if gone[two].all() or (gone[two].any() and furnished[two].any()):
+                continue  # (a leg the camera saw as furniture is no one's other leg)
             said = seen_dyn is not None and _seen_as_person(seen_dyn[two].sum(), seen_lab[two].sum(), cfg)
             if seen_dyn is not None and (pair_veto[ids[i]] or pair_veto[ids[j]]) and not said:
                 continue

@@ -428,7 +428,7 @@ def _leg_pairs(occ: NDArray[np.bool_], vetoed: NDArray[np.bool_], structure: NDA
     if dropped is not None and dropped.any():
         gone = np.bincount(lab[dropped], minlength=n) * 2 > stats[:, cv2.CC_STAT_AREA]
         gone[0] = False
-        furnished = np.bincount(lab.reshape(-1), semi.reshape(-1).astype(np.float64), n) > 0
+        furnished = np.bincount(lab[semi > 0], minlength=n) > 0
     xy = cent * res
     reach = s_hi + 0.5 * hi  # nothing else this close to a person's centre: a chair's legs are not people
 

@@ -676,12 +676,15 @@ class _Refusion:
     def returns_labelled(self) -> int:
         return 0 if self.transfer is None else self.transfer.returns_labelled
 
+    def _labelled(self, pose: NDArray[np.float64], painted: PaintedScan) -> PaintedScan:
+        return painted if self.transfer is None else self.transfer.apply(pose, painted)
+
     def add(self, grid: Any, pose: NDArray[np.float64], painted: PaintedScan) -> None:
         """Fuse the scan into ``grid`` now, or, with loop closure, keep it for :meth:`fuse_at_end`."""
         if self._spool is not None:
             self._spool.append(painted)
         else:
-            grid.integrate(pose, painted if self.transfer is None else self.transfer.apply(pose, painted))
+            grid.integrate(pose, self._labelled(pose, painted))
 
     def fuse_at_end(self, poses: NDArray[np.float64], final: NDArray[np.float64] | None,
                     new_grid: Callable[[], Any], hand_off: Callable[[NDArray[np.float64], Any], int] | None = None
@@ -704,7 +707,7 @@ class _Refusion:
         for i, (pose, painted) in enumerate(zip(use, self._spool)):
             if i == stop:
                 break
-            grid.integrate(pose, painted if self.transfer is None else self.transfer.apply(pose, painted))
+            grid.integrate(pose, self._labelled(pose, painted))
             if i == 0 and hand_off is not None:
                 stop = hand_off(use, grid)
         return grid
@@ -825,7 +828,6 @@ class MapperWorkers:
     def __init__(self, reg_cfg: RegistrationConfig, grid_cfg: GridConfig, class_names: tuple[str, ...],
                  batch: int = 16, transfer: bool = False) -> None:
         self._transfer_cell = grid_cfg.resolution if transfer else None
-        self._tail_labelled = 0
         self._group = _Workers()
         try:
             scans_r, self._scans = self._group.pipe(to_child=True, wide=True)
@@ -884,12 +886,12 @@ class MapperWorkers:
             self._batch = []
         self._send(None)
         _, poses, stats, reg_busy, reg_rss, reg_cpu = self._expect(self._reg, "poses", last=True)
-        tail, tail_s = None, 0.0
+        tail, tail_s, tail_labelled = None, 0.0, 0
         if self._spool is not None:
             t_wait = time.perf_counter()
             _, use, split, lattice = self._expect(self._fuse, "tail")
             t0 = time.perf_counter()
-            tail = self._fuse_tail(use, split, lattice)
+            tail, tail_labelled = self._fuse_tail(use, split, lattice)
             tail_s = time.perf_counter() - t0
             log.debug("fusion at the end: %.3f s waiting for the corrected poses, scans %d-%d fused here in "
                       "%.3f s", t0 - t_wait, split, len(use), tail_s)
@@ -916,14 +918,17 @@ class MapperWorkers:
         return MapperResult(poses, layers, stats, reg_busy, fuse_busy + tail_s,
                             {"registration": round(reg_rss, 1), "fusion": round(fuse_rss, 1)},
                             {"registration": round(reg_cpu, 3), "fusion": round(fuse_cpu, 3)}, (xy, scan_of),
-                            labelled + self._tail_labelled)
+                            labelled + tail_labelled)
 
-    def _fuse_tail(self, poses: NDArray[np.float64], split: int, lattice: tuple[float, float] | None) -> Any:
-        """The grid of the scans from ``split`` on, continuing the fusion worker's (None: no scans left)."""
+    def _fuse_tail(self, poses: NDArray[np.float64], split: int, lattice: tuple[float, float] | None
+                   ) -> tuple[Any, int]:
+        """The grid of the scans from ``split`` on, continuing the fusion worker's (None: no scans left), and
+        how many of their returns took a label from the segmented frames
+        (:class:`~semmap.paint.painter.LabelTransfer`)."""
         from .grid import SemanticGrid
 
         if lattice is None or split >= len(poses):
-            return None
+            return None, 0
         if len(poses) != len(self._spool):
             raise InternalError(f"fusion: {len(self._spool)} scans kept here for {len(poses)} poses")
         tail = SemanticGrid.continuing(*self._grid_args, lattice, split)
@@ -940,9 +945,7 @@ class MapperWorkers:
             tail.integrate(pose, painted if transfer is None else transfer.apply(pose, painted))
             if i % 64 == 63:
                 self._group.check()  # a worker that died meanwhile is reported now, not after this half
-        if transfer is not None:
-            self._tail_labelled = transfer.returns_labelled
-        return tail
+        return tail, 0 if transfer is None else transfer.returns_labelled
 
     def _expect(self, w: _Worker, tag: str, last: bool = False) -> Any:
         msg = self._group.recv(w)

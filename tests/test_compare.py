@@ -73,6 +73,41 @@ def test_a_pot_seen_from_two_sides_is_measured_at_its_centre():
     assert mv.rotation_deg is None and mv.as_dict()["rotation_deg"] is None  # a round object's turn: not measurable
 
 
+@pytest.mark.parametrize("named_in_b", ["couch", "dining table"])
+def test_a_chair_one_camera_named_wrongly_that_moved_is_one_chair_moved(named_in_b):
+    """B's model called the chair a couch (or a table): gone as a chair and new as a couch, its four legs
+    fit each other, so it moved; reported as a chair, the class a chair's size fits. A chair gone and a
+    table of a table's size new are no move."""
+    a, b = Room(), Room()
+    a.objects.append(("chair", (3.0, 3.0), (0.45, 0.45), 0.0))
+    b.objects.append((named_in_b, (5.0, 4.5), (0.45, 0.45), math.radians(20)))
+    r = _diff(a, b)
+    assert r.counts()["object_moved"] == 1, r.counts()
+    assert r.counts()["object_appeared"] == r.counts()["object_disappeared"] == 0
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "chair"
+    assert mv.displacement_m == pytest.approx(2.5, abs=0.05)
+    assert np.linalg.norm(_world(mv.to_xy) - (5.0, 4.5)) < 0.05
+
+    b = Room()
+    b.objects.append(("dining table", (5.0, 4.5), (1.6, 0.8), 0.0))
+    r = _diff(a, b)
+    assert r.counts()["object_moved"] == 0, r.counts()
+    assert r.counts()["object_appeared"] == r.counts()["object_disappeared"] == 1
+
+
+def test_a_pot_one_camera_named_a_bed_that_moved_is_one_pot_moved():
+    """The rims of one pot seen from two sides, named a pot in A and a bed in B: one pot moved."""
+    a, b = Room(), Room()
+    a.round.append(("potted plant", (3.0, 3.0), 0.2, math.pi))
+    b.round.append(("bed", (4.2, 3.5), 0.2, -math.pi / 2))
+    r = _diff(a, b)
+    assert r.counts()["object_moved"] == 1, r.counts()
+    mv = r.of_type("object_moved")[0]
+    assert mv.class_name == "potted plant"
+    assert mv.displacement_m == pytest.approx(1.3, abs=0.03)
+
+
 @pytest.mark.parametrize("radius_b", [0.2, 0.35])
 def test_a_pot_no_camera_labelled_moved_is_one_move_and_a_bigger_round_thing_is_not(radius_b):
     """A pot no camera labelled (its rim a static obstacle: one blob, no legs to fit) moved 1.3 m, seen

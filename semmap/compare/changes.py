@@ -754,6 +754,59 @@ def _match_objects(objs_a: list[_Obj], objs_b: list[_Obj], st: ChangeSettings
             [j for j in range(len(objs_b)) if j not in used_b])
 
 
+def _misnamed(objs_a: list[_Obj], only_a: list[int], objs_b: list[_Obj], only_b: list[int], spec: GridSpec,
+              st: ChangeSettings, size_of: Callable[[str], float]) -> list[tuple[int, int, str]]:
+    """Moves of an object one session's camera named wrongly (a pot under a bed's mask, a chair labelled
+    table): of A's gone objects ``only_a`` and B's new ones ``only_b`` that no object of their class took,
+    pairs of different classes that :func:`_unlabelled_moves`'s shape test says are one object (lengths
+    within 30 %, at most ``max_move_m`` apart, ``unlabelled_fit`` of each one's cells and ``min_fit_legs``
+    legs laid on the other's, or arcs of one circle), the pairs that move least in all; each with the
+    class whose typical size (``size_of``) is nearer the object's, the more often seen on a tie."""
+    res = spec.resolution
+
+    def box(o: _Obj) -> tuple[NDArray[np.float64], float, float, float] | None:
+        return _piece_box(o.cells, spec) if o.cells.shape[0] >= 3 else None
+
+    ba = {i: box(objs_a[i]) for i in only_a}
+    bb = {j: box(objs_b[j]) for j in only_b}
+    cands: list[tuple[int, int, float]] = []
+    for i, pa in ba.items():
+        for j, pb in bb.items():
+            if pa is None or pb is None or objs_a[i].src.class_name == objs_b[j].src.class_name:
+                continue
+            if max(pa[1], pb[1]) > st.max_object_m or abs(pa[1] - pb[1]) > 0.3 * max(pa[1], pb[1]) + 2 * res:
+                continue
+            d = float(np.linalg.norm(pa[0].mean(axis=0) - pb[0].mean(axis=0)))
+            if d > st.max_move_m:
+                continue
+            q, legs, _ = _shape_fit(pa[0], pb[0], _candidate_turns(pa[3], pb[3]), res)
+            if q < st.unlabelled_fit:
+                continue
+            if legs < st.min_fit_legs and not _same_arc(_piece_arc(objs_a[i].cells, pa[1], spec),
+                                                        _piece_arc(objs_b[j].cells, pb[1], spec)):
+                continue
+            cands.append((i, j, d))
+    if not cands:
+        return []
+    ia, jb = sorted({i for i, _, _ in cands}), sorted({j for _, j, _ in cands})
+    cost = np.full((len(ia), len(jb)), 1e6)
+    for i, j, d in cands:
+        cost[ia.index(i), jb.index(j)] = d
+    out = []
+    for x, y in zip(*linear_sum_assignment(cost), strict=True):
+        if cost[x, y] >= 1e6:
+            continue
+        oa, ob = objs_a[ia[x]], objs_b[jb[y]]
+        length = max(*oa.src.size, *ob.src.size, res)
+
+        def misfit(o: _Obj, length: float = length) -> tuple[float, int]:
+            typical = float(size_of(o.src.class_name))
+            return abs(math.log(length / typical)) if typical > 0 else math.inf, -o.src.views
+
+        out.append((ia[x], jb[y], min(oa, ob, key=misfit).src.class_name))
+    return out
+
+
 def _slid(objs_a: list[_Obj], objs_b: list[_Obj], removed: NDArray[np.bool_], added: NDArray[np.bool_],
           still_a: NDArray[np.bool_], still_b: NDArray[np.bool_], seen_by_b: NDArray[np.bool_],
           seen_by_a: NDArray[np.bool_]) -> list[tuple[_Obj, _Obj]]:
@@ -1799,6 +1852,14 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         moved += slid
         only_a = [i for i in only_a if id(gone[i]) not in slid_ids]
         only_b = [j for j in only_b if id(new[j]) not in slid_ids]
+        # an object one session's camera named wrongly: gone as one class, new as another, of one shape
+        renamed = _misnamed(gone, only_a, new, only_b, spec, st, sizes.size_of)
+        for i, j, cls in renamed:
+            was, now = (_Obj(replace(o.src, class_name=cls), o.centroid, o.yaw, o.footprint, o.cells)
+                        for o in (gone[i], new[j]))
+            moved.append((was, now))
+        only_a = [i for i in only_a if i not in {i for i, _, _ in renamed}]
+        only_b = [j for j in only_b if j not in {j for _, j, _ in renamed}]
         # an object that slid by less than its length where the other session's camera labelled nothing:
         # most of it lies on the other session's plain obstacles, so it is neither gone nor new, and there
         # is no object to pair it with (a couch pushed along its wall)

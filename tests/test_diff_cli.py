@@ -279,3 +279,25 @@ def test_the_overlays_labels_at_one_place_do_not_cover_each_other():
     assert len(set(heights)) == 3 and min(abs(a - b) for a in heights for b in heights if a != b) >= 9.0
     assert place((1.0, 1.0), "tv 2.29 m") == (4.0, -2.0)  # alone: beside its point
     plt.close(fig)
+
+
+def test_bare_floor_is_where_many_rays_passed_and_no_beam_ended_in_or_beside_the_cell(demo_map):
+    from semmap.compare.session import BARE_MIN_PASSES, open_session
+
+    s = open_session(demo_map.out)
+    g = np.load(demo_map.out / "grid.npz")
+    hits, free = g["hits"], g["free"]
+    assert s.bare is not None and s.bare.shape == hits.shape and s.bare.any()
+    assert (free[s.bare] >= BARE_MIN_PASSES).all()
+    # no return in the cell or any of its eight neighbours
+    near = np.zeros(hits.shape, bool)
+    h = hits > 0
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            near |= np.roll(np.roll(h, dr, 0), dc, 1)
+    assert not (s.bare & near).any() and not (s.bare & s.occupied).any()
+    # and every cell so passed and so clear is bare (the edges aside, where roll wraps)
+    clear = (free >= BARE_MIN_PASSES) & ~near
+    assert np.array_equal(s.bare[1:-1, 1:-1], clear[1:-1, 1:-1])
+    # a plain map_server map has no counts: no bare floor
+    assert open_session(demo_map.out / "map.yaml").bare is None

@@ -61,7 +61,7 @@ CHANGE_TYPES = ("static_added", "static_removed", "object_moved", "object_appear
 _LEG_RECT_SHORTEST = 0.25
 
 # bits of the code image both sessions are resampled through
-_OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE, _FIRM, _LAB = 1, 2, 4, 8, 16, 32, 64, 128
+_OCC, _FREE, _SEMI, _DYN, _FAINT, _GLIMPSE, _FIRM, _LAB, _BARE = 1, 2, 4, 8, 16, 32, 64, 128, 256
 
 
 @dataclass(frozen=True)
@@ -172,10 +172,13 @@ class LaidOut:
     #: cells the camera painted (see :class:`Session`)
     lab_a: NDArray[np.bool_] | None = None
     lab_b: NDArray[np.bool_] | None = None
+    #: bare floor (see :class:`Session`)
+    bare_a: NDArray[np.bool_] | None = None
+    bare_b: NDArray[np.bool_] | None = None
 
 
-def _code(s: Session) -> NDArray[np.uint8]:
-    c = np.zeros(s.spec.shape, np.uint8)
+def _code(s: Session) -> NDArray[np.uint16]:
+    c = np.zeros(s.spec.shape, np.uint16)
     c[s.occupied] |= _OCC
     c[s.free & ~s.occupied] |= _FREE
     c[s.semi_static] |= _SEMI
@@ -188,6 +191,8 @@ def _code(s: Session) -> NDArray[np.uint8]:
         c[s.occupied & ~s.weak] |= _FIRM
     if s.labelled is not None:
         c[s.labelled] |= _LAB
+    if s.bare is not None:
+        c[s.bare & ~s.occupied] |= _BARE
     return c
 
 
@@ -209,7 +214,7 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
     height = r0 + int(math.ceil((y1 - sa.origin_y) / res - 1e-6))
     spec = GridSpec(res, sa.origin_x - c0 * res, sa.origin_y - r0 * res, width, height)
 
-    code_a = np.zeros(spec.shape, np.uint8)
+    code_a = np.zeros(spec.shape, np.uint16)
     code_a[r0:r0 + sa.height, c0:c0 + sa.width] = _code(a)
     # every cell centre of the grown grid, carried into B's frame, and the B cell it falls in
     xs = spec.origin_x + (np.arange(spec.width, dtype=np.float64) + 0.5) * res
@@ -223,7 +228,7 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
                          (sn * xs + t_b_a[1] - sb.origin_y) / sb.resolution - 0.5).astype(np.float32)
     raw_b = _code(b)
     code_b = np.asarray(cv2.remap(raw_b, map_x, map_y, interpolation=cv2.INTER_NEAREST,
-                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0), np.uint8)
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=0), np.uint16)
     # sampling a turned grid at A's cell centres skips some of B's cells: a thin leg that is one cell
     # would vanish. B's obstacle cells are also carried forward into the cell their centre falls in
     solid = _OCC | _SEMI | _DYN | _FAINT | _FIRM
@@ -236,9 +241,9 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
         ok = (r >= 0) & (r < spec.height) & (c >= 0) & (c < spec.width)
         bits_b = (raw_b[rows_b, cols_b] & (solid | _LAB))[ok]
         np.bitwise_or.at(code_b, (r[ok], c[ok]), bits_b)
-        code_b[r[ok], c[ok]] &= ~np.uint8(_FREE)
+        code_b[r[ok], c[ok]] &= ~np.uint16(_FREE | _BARE)
 
-    def bits(code: NDArray[np.uint8], bit: int) -> NDArray[np.bool_]:
+    def bits(code: NDArray[np.uint16], bit: int) -> NDArray[np.bool_]:
         return (code & bit) > 0
 
     index_a = index_b = None
@@ -258,7 +263,9 @@ def lay_out(a: Session, b: Session, T_a_b: NDArray[np.float64]) -> LaidOut:
                    bits(code_a, _OCC) & ~bits(code_a, _FIRM) if a.weak is not None else None,
                    bits(code_b, _OCC) & ~bits(code_b, _FIRM) if b.weak is not None else None,
                    bits(code_a, _LAB) if a.labelled is not None else None,
-                   bits(code_b, _LAB) if b.labelled is not None else None)
+                   bits(code_b, _LAB) if b.labelled is not None else None,
+                   bits(code_a, _BARE) if a.bare is not None else None,
+                   bits(code_b, _BARE) if b.bare is not None else None)
 
 
 _disk = disk_kernel
@@ -341,7 +348,8 @@ def _icp(src: NDArray[np.float64], dst: NDArray[np.float64], pose: NDArray[np.fl
 
 def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
                  too_long: Callable[[_Obj], bool] | None = None, leg_cells: int = 0,
-                 min_legs: int = 0) -> tuple[list[_Obj], list[tuple[NDArray[np.intp], str]]]:
+                 min_legs: int = 0, other_bare: NDArray[np.bool_] | None = None
+                 ) -> tuple[list[_Obj], list[tuple[NDArray[np.intp], str]]]:
     """``changed`` less the objects that are an object of their class in ``unchanged_other`` (the
     other session's objects that did not change) seen more fully: most of that object's cells, and a
     third of this one's, lie within a cell and a half of each other (two legs of a chair in A, four in
@@ -353,7 +361,11 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
     their own (groups of at most ``leg_cells`` cells): not legs the other session lost, but a second
     object its build grouped with the first (a table of four legs that went from the end of one that
     stayed; a chair tucked at a table's end that moved away). They are the caller's to pair with the
-    other end of a move, or to report gone (or new) on their own."""
+    other end of a move, or to report gone (or new) on their own.
+
+    Not seen more fully when two of its legs wholly beyond the other object, fewer than a second object's,
+    stand wholly on the other session's bare floor (``other_bare``, as for :func:`_legs_still`): they are no legs
+    the other session missed."""
     out: list[_Obj] = []
     rests: list[tuple[NDArray[np.intp], str]] = []
     for o in changed:
@@ -369,8 +381,15 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
             d_o = cKDTree(uxy).query(xy)[0]
             d_u = cKDTree(xy).query(uxy)[0]
             if float(np.mean(d_o <= 1.5)) >= 1.0 / 3.0 and float(np.mean(d_u <= 1.5)) >= 0.5:
-                same = True
                 beyond = o.cells[d_o > 1.5]
+                if other_bare is not None and leg_cells:
+                    # (its legs wholly beyond the other object: two on bare floor, and too few for a second)
+                    groups, legs = _leg_groups(o.cells, leg_cells)
+                    far = np.array([bool((d_o[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
+                    if far.sum() < max(min_legs, 1) and \
+                            _bare_legs(o.cells, groups, legs[far], other_bare) >= 2:
+                        continue
+                same = True
                 if min_legs and _legs_of_its_own(beyond.astype(np.float64), leg_cells) >= min_legs:
                     rests.append((beyond, o.src.class_name))
                 break
@@ -1332,7 +1351,8 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
                      other_observed: NDArray[np.bool_], people: NDArray[np.bool_], st: ChangeSettings,
                      left_out: dict[str, int], key: str, by_wall: NDArray[np.bool_] | None = None,
                      others: list[_Obj] | None = None,
-                     kept_legs: tuple[NDArray[np.bool_], NDArray[np.bool_], int, float] | None = None,
+                     kept_legs: tuple[NDArray[np.bool_], NDArray[np.bool_], int, float, NDArray[np.bool_] | None]
+                     | None = None,
                      too_long: Callable[[_Obj], bool] | None = None) -> list[_Obj]:
     """The objects most of whose cells changed (``removed`` for A's, ``added`` for B's). A cell with
     an obstacle of the other session within the tolerance (``still``) is there still; one beside
@@ -1378,20 +1398,32 @@ def _changed_objects(objs: list[_Obj], changed: NDArray[np.bool_], still: NDArra
 
 
 def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool_], leg_cells: int,
-                res: float) -> bool:
+                res: float, other_bare: NDArray[np.bool_] | None = None) -> bool:
     """Whether an object of three legs or more (and little else) has two of them, and half, with a leg (or a small
     obstacle) of the other session on them, and the other session changed nothing within the object's
     size of it: it stands there still, and the other map lost its other legs (thin legs that rays
     grazing past cleared, or that beams ended on too seldom). A chair pushed back by its legs' spacing
-    puts two legs where two stood, and two new ones beside them."""
+    puts two legs where two stood, and two new ones beside them. Not when two of the legs the other
+    session did not keep stand wholly on its bare floor (``other_bare``, :attr:`Session.bare`): rays
+    passed there again and again and none ended, so no leg stood there. A chair turned on the spot puts
+    two legs on two of its old places and two on floor that was bare (`random:643`)."""
     cells = o.cells
     groups, legs = _leg_groups(cells, leg_cells)
     if legs.size < 3:
         return False  # (furniture of legs alone: a couch's faces in pieces are no legs)
-    held = np.intersect1d(np.unique(groups[kept[cells[:, 0], cells[:, 1]]]), legs).size
-    if held < 2 or held < 0.5 * legs.size:
+    held = np.intersect1d(np.unique(groups[kept[cells[:, 0], cells[:, 1]]]), legs)
+    if held.size < 2 or held.size < 0.5 * legs.size:
+        return False
+    if other_bare is not None and _bare_legs(cells, groups, np.setdiff1d(legs, held), other_bare) >= 2:
         return False
     return _cells_near(other_changed, cells, max(*o.src.size, 2 * res) / res).shape[0] < 2
+
+
+def _bare_legs(cells: NDArray[np.intp], groups: NDArray[np.intp], legs: NDArray[np.intp],
+               bare: NDArray[np.bool_]) -> int:
+    """How many of the groups ``legs`` of ``cells`` (per cell its group) lie wholly on ``bare``."""
+    on = bare[cells[:, 0], cells[:, 1]]
+    return sum(bool(on[groups == g].all()) for g in legs.tolist())
 
 
 def _leg_groups(cells: NDArray[np.intp], leg_cells: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -1799,17 +1831,19 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             return bool(o.src.class_name) and max(o.src.size) > 1.1 * float(sizes.size_of(o.src.class_name)) + res
 
         gone = _changed_objects(objs_a, gone_cells, still_a, obs_b, people_for_a, st, left_out,
-                                "objects_unobserved_in_b", wall_a, objs_b, (kept_a, added, leg_cells, res), too_long)
+                                "objects_unobserved_in_b", wall_a, objs_b, (kept_a, added, leg_cells, res, lo.bare_b),
+                                too_long)
         new = _changed_objects(objs_b, new_cells, still_b, obs_a, people_for_b, st, left_out,
-                               "objects_unobserved_in_a", wall_b, objs_a, (kept_b, removed, leg_cells, res), too_long)
+                               "objects_unobserved_in_a", wall_b, objs_a, (kept_b, removed, leg_cells, res, lo.bare_a),
+                               too_long)
         # an object whose legs stand on an unchanged object of its class in the other session is that
         # object, seen more fully by one session (two legs of a chair in A, four in B)
         new_ids = {id(o) for o in new}
         gone, rests_a = _seen_better(gone, [o for o in objs_b if id(o) not in new_ids], too_long, leg_cells,
-                                     st.min_fit_legs)
+                                     st.min_fit_legs, lo.bare_b)
         gone_ids = {id(o) for o in gone}
         new, rests_b = _seen_better(new, [o for o in objs_a if id(o) not in gone_ids], too_long, leg_cells,
-                                    st.min_fit_legs)
+                                    st.min_fit_legs, lo.bare_a)
         # an object too long for its class (more than one, grouped by its build) most of whose cells did
         # not change may hold one that did: its changed cells, when they are three legs or more of their
         # own (a new table its build grouped with the one beside it that stayed)

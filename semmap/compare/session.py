@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 
 from ..config import CleaningConfig
 from ..errors import ConfigError, MapFolderError, SemmapError
+from ..geometry import dilate_mask
 from ..grid import SemiStaticObject
 from ..grid.clean import group_objects
 from ..io.mapserver import read_map
@@ -37,6 +38,9 @@ __all__ = ["FAINT_MIN_HITS", "FAINT_MIN_SHARE", "LEG_M", "Session", "distinct_na
 #: share of the beams that reached it (a person walking through ends a beam or two among hundreds)
 FAINT_MIN_HITS = 3
 FAINT_MIN_SHARE = 0.1
+#: a cell is bare floor when at least this many rays passed through it and no beam ended in it or beside it:
+#: a thin leg that stood there would have caught some (a 4 cm leg in a 5 cm cell catches a beam in five)
+BARE_MIN_PASSES = 20
 
 
 @dataclass(frozen=True)
@@ -75,6 +79,9 @@ class Session:
     #: cells the camera painted (any class: hits with a label): None for a plain map, whose cells no
     #: camera saw
     labelled: NDArray[np.bool_] | None = None
+    #: bare floor: cells ``BARE_MIN_PASSES`` rays or more passed through with no return in them or their
+    #: eight neighbours. Nothing stood there, not even a thin leg the map lost. None for a plain map
+    bare: NDArray[np.bool_] | None = None
 
     @property
     def name(self) -> str:
@@ -248,13 +255,14 @@ def open_session(path: str | Path) -> Session:
         seen = hits + layers.free.astype(np.float32)
         glimpsed = ~occupied & ~dynamic & (hits >= FAINT_MIN_HITS)
         faint = glimpsed & (hits >= FAINT_MIN_SHARE * np.maximum(seen, 1.0))
+        bare = (layers.free >= BARE_MIN_PASSES) & ~dilate_mask(hits > 0, 1.5)
         semi = np.asarray(m.semi_static, bool)
         # a LiDAR-only map folder has no classes: its diff is geometric, as a plain map's
         return Session(p, m.spec, occupied, np.asarray(m.free, bool), semi, dynamic,
                        m.objects, bool(m.class_names), faint=faint,
                        object_index=_object_index(p, m), glimpsed=glimpsed,
                        weak=occupied & (hits < FAINT_MIN_HITS),
-                       labelled=labelled_hits > 0)
+                       labelled=labelled_hits > 0, bare=bare)
     if p.is_dir():
         if not (p / "map.yaml").is_file():
             raise MapFolderError(f"{p}: neither a map folder (no summary.json) nor a folder with a map.yaml")

@@ -386,7 +386,7 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
                     # (its legs wholly beyond the other object: two on bare floor, and too few for a second)
                     groups, legs = _leg_groups(o.cells, leg_cells)
                     far = np.array([bool((d_o[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
-                    if far.sum() < max(min_legs, 1) and \
+                    if (not min_legs or far.sum() < min_legs) and \
                             _bare_legs(o.cells, groups, legs[far], other_bare) >= 2:
                         continue
                 same = True
@@ -1892,8 +1892,9 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
             was, now = (_Obj(replace(o.src, class_name=cls), o.centroid, o.yaw, o.footprint, o.cells)
                         for o in (gone[i], new[j]))
             moved.append((was, now))
-        only_a = [i for i in only_a if i not in {i for i, _, _ in renamed}]
-        only_b = [j for j in only_b if j not in {j for _, j, _ in renamed}]
+        renamed_a, renamed_b = {i for i, _, _ in renamed}, {j for _, j, _ in renamed}
+        only_a = [i for i in only_a if i not in renamed_a]
+        only_b = [j for j in only_b if j not in renamed_b]
         # an object that slid by less than its length where the other session's camera labelled nothing:
         # most of it lies on the other session's plain obstacles, so it is neither gone nor new, and there
         # is no object to pair it with (a couch pushed along its wall)

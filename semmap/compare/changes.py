@@ -398,6 +398,40 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
     return out, rests
 
 
+def _onto_itself(changed: list[_Obj], unchanged_other: list[_Obj], too_long: Callable[[_Obj], bool],
+                 other_bare: NDArray[np.bool_] | None, leg_cells: int) -> list[tuple[int, _Obj]]:
+    """Of ``changed`` (gone or new, matched to nothing), the objects on legs that moved onto part of their own
+    place: two legs or more on an unchanged object of their class in the other session (half that one's cells
+    within a cell and a half of theirs), and two or more legs wholly beyond it standing on the other
+    session's bare floor (``other_bare``), where it saw no leg. A chair turned on the spot: two legs on two
+    of its old places. Each with that object (index in ``changed``, the other object), one pair per object;
+    not an object too long for its class (more than one, grouped by its build). None without bare floor."""
+    out: list[tuple[int, _Obj]] = []
+    if other_bare is None:
+        return out
+    used: set[int] = set()
+    for k, o in enumerate(changed):
+        if not o.cells.shape[0] or too_long(o):
+            continue
+        groups, legs = _leg_groups(o.cells, leg_cells)
+        if legs.size < 4:
+            continue
+        xy = o.cells.astype(np.float64)
+        tree = cKDTree(xy)
+        for u in unchanged_other:
+            if id(u) in used or u.src.class_name != o.src.class_name or not u.cells.shape[0] or too_long(u):
+                continue
+            if float(np.mean(tree.query(u.cells.astype(np.float64))[0] <= 1.5)) < 0.5:
+                continue
+            d_o = cKDTree(u.cells.astype(np.float64)).query(xy)[0]
+            far = np.array([bool((d_o[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
+            if legs.size - far.sum() >= 2 and _bare_legs(o.cells, groups, legs[far], other_bare) >= 2:
+                out.append((k, u))
+                used.add(id(u))
+                break
+    return out
+
+
 def _legs_of_its_own(cells: NDArray[np.float64], leg_cells: int) -> int:
     """How many legs ``cells`` (row, col) hold: 8-connected groups of at most ``leg_cells`` cells."""
     if not cells.shape[0]:
@@ -1875,12 +1909,24 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         new = _merge_fragments(new, sizes.size_of, spec)
         pairs, only_a, only_b = _match_objects(gone, new, st)
         moved = [(gone[i], new[j]) for i, j in pairs]
+        # an object that moved onto part of its own place (a chair turned on the spot: two legs on two of
+        # its old places, two on the other session's bare floor) is that object moved, not a second one
+        gone_ids, new_ids = {id(o) for o in gone}, {id(o) for o in new}
+        for objs_side, idx, others, in_a in ((gone, only_a, [o for o in objs_b if id(o) not in new_ids], True),
+                                             (new, only_b, [o for o in objs_a if id(o) not in gone_ids], False)):
+            for k, u in _onto_itself([objs_side[k] for k in idx], others, too_long, lo.bare_b if in_a else lo.bare_a,
+                                     leg_cells):
+                o = objs_side[idx[k]]
+                moved.append((o, u) if in_a else (u, o))
+            in_moves = {id(p) for pair in moved for p in pair}
+            idx[:] = [k for k in idx if id(objs_side[k]) not in in_moves]
         # an object slid by less than its own size (a table pushed 30 cm) keeps part of its cells on
         # the other session's: it is gone with nothing new to match, or not gone at all, but each
         # session saw floor where the other saw some of its legs
         gone_ids, new_ids = {id(o) for o in gone}, {id(o) for o in new}
-        slid = _slid([gone[i] for i in only_a] + [o for o in objs_a if id(o) not in gone_ids],
-                     [new[j] for j in only_b] + [o for o in objs_b if id(o) not in new_ids], removed, added,
+        in_moves = {id(p) for pair in moved for p in pair}
+        slid = _slid([gone[i] for i in only_a] + [o for o in objs_a if id(o) not in gone_ids | in_moves],
+                     [new[j] for j in only_b] + [o for o in objs_b if id(o) not in new_ids | in_moves], removed, added,
                      near_b, near_a, obs_b, obs_a)
         slid_ids = {id(o) for pair in slid for o in pair}
         moved += slid

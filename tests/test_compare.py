@@ -1110,6 +1110,9 @@ def test_two_sessions_whose_folders_share_a_name_are_named_by_their_parents():
     # names that differ stay as they are
     r = diff_sessions(Room().session(T_A, "x/monday"), Room().session(T_B, "x/tuesday"), alignment=al)
     assert (r.a.name, r.b.name) == ("monday", "tuesday")
+    # one folder twice (a check that nothing changed): its path from the root, written as a user would
+    r = diff_sessions(Room().session(T_A, "/maps/ward"), Room().session(T_B, "/maps/ward"), alignment=al)
+    assert r.a.name == r.b.name == "/maps/ward"
 
 
 def test_a_couch_back_where_the_other_session_saw_a_walker_is_added():

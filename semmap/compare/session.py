@@ -116,7 +116,7 @@ def distinct_names(sessions: Sequence[Session]) -> tuple[Session, ...]:
     parts = [_base(s.path.absolute()).parts for s in out]
     cand = names
     for depth in range(2, max(len(p) for p in parts) + 1):
-        cand = ["/".join(p[-depth:]) for p in parts]
+        cand = [Path(*p[-depth:]).as_posix() for p in parts]  # (a path from the root keeps one slash)
         if len(set(cand)) == len(cand):
             break
     return tuple(dataclasses.replace(s, label=c) if c != n else s for s, c, n in zip(out, cand, names))

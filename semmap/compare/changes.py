@@ -1923,7 +1923,6 @@ def classify_changes(a: Session, b: Session, lo: LaidOut, T_a_b: NDArray[np.floa
         # an object slid by less than its own size (a table pushed 30 cm) keeps part of its cells on
         # the other session's: it is gone with nothing new to match, or not gone at all, but each
         # session saw floor where the other saw some of its legs
-        gone_ids, new_ids = {id(o) for o in gone}, {id(o) for o in new}
         in_moves = {id(p) for pair in moved for p in pair}
         slid = _slid([gone[i] for i in only_a] + [o for o in objs_a if id(o) not in gone_ids | in_moves],
                      [new[j] for j in only_b] + [o for o in objs_b if id(o) not in new_ids | in_moves], removed, added,

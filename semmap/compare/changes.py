@@ -385,7 +385,7 @@ def _seen_better(changed: list[_Obj], unchanged_other: list[_Obj],
                 if other_bare is not None and leg_cells:
                     # (its legs wholly beyond the other object: two on bare floor, and too few for a second)
                     groups, legs = _leg_groups(o.cells, leg_cells)
-                    far = np.array([bool((d_o[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
+                    far = _legs_beyond(d_o, groups, legs)
                     if (not min_legs or far.sum() < min_legs) and \
                             _bare_legs(o.cells, groups, legs[far], other_bare) >= 2:
                         continue
@@ -424,7 +424,7 @@ def _onto_itself(changed: list[_Obj], unchanged_other: list[_Obj], too_long: Cal
             if float(np.mean(tree.query(u.cells.astype(np.float64))[0] <= 1.5)) < 0.5:
                 continue
             d_o = cKDTree(u.cells.astype(np.float64)).query(xy)[0]
-            far = np.array([bool((d_o[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
+            far = _legs_beyond(d_o, groups, legs)
             if legs.size - far.sum() >= 2 and _bare_legs(o.cells, groups, legs[far], other_bare) >= 2:
                 out.append((k, u))
                 used.add(id(u))
@@ -1451,6 +1451,12 @@ def _legs_still(o: _Obj, kept: NDArray[np.bool_], other_changed: NDArray[np.bool
     if other_bare is not None and _bare_legs(cells, groups, np.setdiff1d(legs, held), other_bare) >= 2:
         return False
     return _cells_near(other_changed, cells, max(*o.src.size, 2 * res) / res).shape[0] < 2
+
+
+def _legs_beyond(d: NDArray[np.float64], groups: NDArray[np.intp], legs: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Per leg group in ``legs``, whether all its cells lie farther than a cell and a half from another object
+    (``d``: each cell's distance to it, in cells; ``groups``: each cell's group)."""
+    return np.array([bool((d[groups == g] > 1.5).all()) for g in legs.tolist()], bool)
 
 
 def _bare_legs(cells: NDArray[np.intp], groups: NDArray[np.intp], legs: NDArray[np.intp],
